@@ -1,0 +1,1 @@
+"""Feature sources: classical features from the papers and learned ONNX likelihood maps."""

@@ -1,0 +1,1 @@
+"""Training of the needle likelihood networks (needs the ``train`` extra: torch, lightning)."""
