@@ -1,0 +1,211 @@
+"""The sequence file: one ``.npz`` per sequence, the contract between synth, track and bench.
+
+This module is the only writer and reader of the format (see DESIGN.md, "The sequence
+file"). :func:`validate_sequence` checks every key's presence, dtype and shape and raises
+:class:`SequenceFileError` naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "MODALITIES",
+    "Sequence",
+    "SequenceFileError",
+    "save_sequence",
+    "load_sequence",
+    "validate_sequence",
+]
+
+MODALITIES = ("inplane", "axial", "volume")
+REQUIRED = ("images", "spacing_mm", "origin_mm", "modality", "timestamps_s", "dynamic_range_db",
+            "meta")
+OPTIONAL = ("probe_pose", "tip_mm", "entry_mm", "direction", "visible", "centerline_mm",
+            "tip_3d_mm", "contrast_ratio")
+
+
+class SequenceFileError(ValueError):
+    """A sequence file (or in-memory sequence) is missing a key or has a wrong one."""
+
+
+@dataclass
+class Sequence:
+    """A labelled sequence of B-mode frames. Array and point conventions as DESIGN.md."""
+
+    images: np.ndarray
+    spacing_mm: np.ndarray
+    origin_mm: np.ndarray
+    modality: str
+    timestamps_s: np.ndarray
+    dynamic_range_db: float
+    meta: dict = field(default_factory=dict)
+    probe_pose: np.ndarray | None = None
+    tip_mm: np.ndarray | None = None
+    entry_mm: np.ndarray | None = None
+    direction: np.ndarray | None = None
+    visible: np.ndarray | None = None
+    centerline_mm: np.ndarray | None = None
+    tip_3d_mm: np.ndarray | None = None  # 2D modalities: the tip in the probe frame (x, y, z)
+    contrast_ratio: np.ndarray | None = None  # Zhao 2013 eq. (9), per frame
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.images.shape[0])
+
+    @property
+    def ndim(self) -> int:
+        """Spatial dimensionality of a frame (2 or 3)."""
+        return int(self.images.ndim - 1)
+
+    @property
+    def has_labels(self) -> bool:
+        return self.tip_mm is not None
+
+    def grid(self):
+        from ._geometry import Grid
+
+        return Grid(self.images.shape[1:], tuple(self.spacing_mm), tuple(self.origin_mm))
+
+    def as_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in REQUIRED + OPTIONAL}
+        return {k: v for k, v in d.items() if v is not None}
+
+
+def _err(source: str, key: str, msg: str) -> SequenceFileError:
+    return SequenceFileError(f"{source}: key '{key}': {msg}")
+
+
+def validate_sequence(seq: Sequence, source: str = "sequence") -> Sequence:
+    """Check shapes, dtypes and values; return ``seq`` or raise :class:`SequenceFileError`."""
+    im = seq.images
+    if not isinstance(im, np.ndarray) or im.dtype != np.uint8:
+        raise _err(source, "images", f"must be a uint8 array, got {getattr(im, 'dtype', type(im))}")
+    if im.ndim not in (3, 4):
+        raise _err(source, "images", f"must be (T, H, W) or (T, Z, Y, X), got shape {im.shape}")
+    T, nd = im.shape[0], im.ndim - 1
+    if T < 1 or any(s < 2 for s in im.shape[1:]):
+        raise _err(source, "images", f"needs at least one frame of 2+ pixels, got {im.shape}")
+    if seq.modality not in MODALITIES:
+        raise _err(source, "modality", f"must be one of {MODALITIES}, got {seq.modality!r}")
+    if (seq.modality == "volume") != (nd == 3):
+        raise _err(source, "modality",
+                   f"{seq.modality!r} does not match {nd}D frames of shape {im.shape[1:]}")
+    for key in ("spacing_mm", "origin_mm"):
+        v = np.asarray(getattr(seq, key), float)
+        if v.shape != (nd,) or not np.all(np.isfinite(v)):
+            raise _err(source, key, f"must be {nd} finite numbers, got {v}")
+        if key == "spacing_mm" and np.any(v <= 0):
+            raise _err(source, key, f"must be positive, got {v}")
+    ts = np.asarray(seq.timestamps_s, float)
+    if ts.shape != (T,) or not np.all(np.isfinite(ts)):
+        raise _err(source, "timestamps_s", f"must be {T} finite numbers, got shape {ts.shape}")
+    if T > 1 and np.any(np.diff(ts) < 0):
+        raise _err(source, "timestamps_s", "must not decrease")
+    dr = float(seq.dynamic_range_db)
+    if not np.isfinite(dr) or dr <= 0:
+        raise _err(source, "dynamic_range_db", f"must be positive, got {dr}")
+    if not isinstance(seq.meta, dict):
+        raise _err(source, "meta", "must be a JSON object")
+    shapes = {
+        "probe_pose": (T, 4, 4), "tip_mm": (T, nd), "entry_mm": (T, nd), "direction": (T, nd),
+        "visible": (T,), "tip_3d_mm": (T, 3), "contrast_ratio": (T,),
+    }
+    for key, shape in shapes.items():
+        v = getattr(seq, key)
+        if v is None:
+            continue
+        v = np.asarray(v)
+        if v.shape != shape:
+            raise _err(source, key, f"must have shape {shape}, got {v.shape}")
+        if key == "visible":
+            if v.dtype != bool:
+                raise _err(source, key, f"must be bool, got {v.dtype}")
+        elif key not in ("tip_mm", "direction", "contrast_ratio") and not np.all(np.isfinite(v)):
+            raise _err(source, key, "must be finite")
+    if seq.centerline_mm is not None:
+        c = np.asarray(seq.centerline_mm)
+        if c.ndim != 3 or c.shape[0] != T or c.shape[2] not in (2, 3):
+            raise _err(source, "centerline_mm", f"must be (T, K, 2 or 3), got {c.shape}")
+    if seq.tip_mm is not None and seq.visible is None:
+        raise _err(source, "visible", "is required when tip_mm is given")
+    return seq
+
+
+def save_sequence(seq: Sequence, path: str | os.PathLike, overwrite: bool = False) -> Path:
+    """Validate and write ``seq``; never leaves a partial file and never overwrites unasked."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise ValueError(f"output {path}: a sequence file must end in .npz")
+    if path.exists() and not overwrite:
+        raise FileExistsError(
+            f"output {path} exists; pass overwrite=True (--overwrite) to replace it")
+    validate_sequence(seq)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise FileNotFoundError(f"output {path}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise PermissionError(f"output {path}: directory {parent} is not writable")
+    arrays = {}
+    for k, v in seq.as_dict().items():
+        if k == "meta":
+            arrays[k] = np.array(json.dumps(v, sort_keys=True))
+        elif k == "modality":
+            arrays[k] = np.array(v)
+        else:
+            arrays[k] = np.asarray(v)
+    fd, tmp = tempfile.mkstemp(suffix=".npz", dir=parent)
+    try:
+        with os.fdopen(fd, "wb") as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED) as zf:
+            for k in sorted(arrays):
+                # a fixed timestamp: the same sequence always gives the same bytes
+                info = zipfile.ZipInfo(f"{k}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                info.compress_type = zipfile.ZIP_DEFLATED
+                with zf.open(info, "w", force_zip64=True) as f:
+                    np.lib.format.write_array(f, np.asanyarray(arrays[k]), allow_pickle=False)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def load_sequence(path: str | os.PathLike) -> Sequence:
+    """Read and validate a sequence file; a bad file raises :class:`SequenceFileError`."""
+    path = Path(path)
+    src = str(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{src}: no such sequence file")
+    try:
+        data = np.load(path, allow_pickle=False)
+        files = set(data.files)
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise SequenceFileError(f"{src}: not a readable .npz file ({exc})") from None
+    with data:
+        missing = [k for k in REQUIRED if k not in files]
+        if missing:
+            raise _err(src, missing[0], "is missing")
+        kw = {}
+        for k in REQUIRED + OPTIONAL:
+            if k not in files:
+                continue
+            try:
+                kw[k] = data[k]
+            except (ValueError, zipfile.BadZipFile, OSError, EOFError) as exc:
+                raise _err(src, k, f"cannot be read ({exc})") from None
+    try:
+        kw["modality"] = str(kw["modality"][()])
+        kw["dynamic_range_db"] = float(kw["dynamic_range_db"])
+        kw["meta"] = json.loads(str(kw["meta"][()]))
+    except (ValueError, TypeError, json.JSONDecodeError) as exc:
+        raise SequenceFileError(
+            f"{src}: scalar keys modality/dynamic_range_db/meta: {exc}") from None
+    return validate_sequence(Sequence(**kw), source=src)

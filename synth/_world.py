@@ -1,0 +1,282 @@
+"""The simulated world: tissue scatterers, the scattering map, the needle and their motion.
+
+Tissue is an unbounded field of point scatterers with Gaussian amplitudes (the Field II
+convention). Scatterers are generated lazily, cell by cell, from a seed derived from the world
+seed and the cell index, so that any region can be imaged from any probe pose and always holds
+the same scatterers: moving the probe decorrelates the speckle physically, and coming back
+brings the same speckle back.
+
+The scattering map multiplies scatterer amplitudes (Zhao 2013 assigns each Field II scatterer
+the value of a breast scattering map at its position). Ours is built from analytic parts that
+can be evaluated anywhere: a smooth log-normal inhomogeneity, interfaces, line-like structures,
+anechoic cysts and bright needle-like distractors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._geometry import apply_transform
+from ._kernels import scattering_amplitude
+
+__all__ = [
+    "GAUGE_OUTER_DIAMETER_MM",
+    "ScatteringMap",
+    "Tissue",
+    "NeedleSpec",
+    "NeedlePath",
+    "World",
+    "needle_radius_mm",
+]
+
+# Nominal outer diameters (mm) of needle gauges (Stubs / ISO 9626 nominal values).
+GAUGE_OUTER_DIAMETER_MM = {
+    12: 2.769, 13: 2.413, 14: 2.108, 15: 1.829, 16: 1.651, 17: 1.473, 18: 1.270,
+    19: 1.067, 20: 0.908, 21: 0.819, 22: 0.718, 23: 0.642, 25: 0.515, 27: 0.413,
+}
+
+
+def needle_radius_mm(gauge: int) -> float:
+    """Outer radius of a needle of the given gauge."""
+    if gauge not in GAUGE_OUTER_DIAMETER_MM:
+        raise ValueError(
+            f"gauge {gauge!r} unknown; choose one of {sorted(GAUGE_OUTER_DIAMETER_MM)}"
+        )
+    return GAUGE_OUTER_DIAMETER_MM[gauge] / 2.0
+
+
+@dataclass(frozen=True)
+class ScatteringMap:
+    """Amplitude multiplier of the tissue scatterers as a function of position (tissue frame).
+
+    All arrays are small (a handful of structures); evaluation is vectorised over points.
+    ``amplitude(points) = exp(sigma * smooth) * interfaces * lines * cysts * distractors``.
+    """
+
+    smooth_sigma: float = 0.0  # std of the log-amplitude of the smooth inhomogeneity
+    wave_vectors: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # rad/mm
+    wave_phases: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # interfaces: unit normal, offset (mm), amplitude factor on the positive side
+    interface_normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    interface_offsets: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    interface_factors: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    interface_brightness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # line-like structures (fascia, vessel walls): segments, radius and amplitude gain
+    line_a: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    line_b: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    line_radius: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    line_gain: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # cysts: centre, radius, amplitude factor inside (about 0: anechoic)
+    cyst_centers: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    cyst_radii: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cyst_factor: float = 0.03
+
+    _SMOOTH_STEP_MM = 0.5
+
+    @property
+    def is_homogeneous(self) -> bool:
+        return (
+            self.smooth_sigma == 0
+            and len(self.interface_offsets) == 0
+            and len(self.line_radius) == 0
+            and len(self.cyst_radii) == 0
+        )
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """Amplitude multiplier at ``points`` (N, 3), tissue frame (compiled loop)."""
+        p = np.ascontiguousarray(points, dtype=np.float32).reshape(-1, 3)
+
+        def f(a, shape):
+            return np.ascontiguousarray(np.asarray(a, np.float64).reshape(shape))
+
+        smooth, origin = np.ones((1, 1, 1)), np.zeros(3)
+        if self.smooth_sigma > 0 and len(self.wave_phases) and len(p):
+            # The smooth field on a global 0.5 mm lattice (aligned to the origin, so a point
+            # gets the same value whatever region is asked for), read by interpolation.
+            h = self._SMOOTH_STEP_MM
+            lo = np.floor(p.min(0) / h) * h
+            hi = np.ceil(p.max(0) / h) * h + h
+            axes = [np.arange(a, b + 0.5 * h, h) for a, b in zip(lo, hi, strict=True)]
+            X, Y, Z = np.meshgrid(*axes, indexing="ij", sparse=True)
+            s = np.zeros((len(axes[0]), len(axes[1]), len(axes[2])))
+            for k, ph in zip(self.wave_vectors, self.wave_phases, strict=True):
+                s += np.cos(k[0] * X + k[1] * Y + k[2] * Z + ph)
+            smooth = np.exp(self.smooth_sigma * np.sqrt(2.0 / len(self.wave_phases)) * s)
+            origin = lo
+        return scattering_amplitude(
+            p, smooth, origin.astype(np.float64), float(self._SMOOTH_STEP_MM),
+            f(self.interface_normals, (-1, 3)), f(self.interface_offsets, -1),
+            f(self.interface_factors, -1), f(self.interface_brightness, -1),
+            f(self.line_a, (-1, 3)), f(self.line_b, (-1, 3)), f(self.line_radius, -1),
+            f(self.line_gain, -1), f(self.cyst_centers, (-1, 3)), f(self.cyst_radii, -1),
+            float(self.cyst_factor))
+
+
+@dataclass(frozen=True)
+class Tissue:
+    """An unbounded field of point scatterers with Gaussian amplitudes.
+
+    ``density_per_mm3`` scatterers per mm^3, generated lazily in cubic cells of
+    ``cell_mm``; the cell with integer index (i, j, k) always holds the same scatterers.
+    """
+
+    density_per_mm3: float
+    seed: int
+    scattering_map: ScatteringMap = field(default_factory=ScatteringMap)
+    cell_mm: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.density_per_mm3) or self.density_per_mm3 <= 0:
+            raise ValueError(f"density_per_mm3 must be positive, got {self.density_per_mm3}")
+
+    def scatterers_in_box(self, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (N, 3) and amplitudes (N,), float32, of the scatterers in a box.
+
+        The box is given in tissue coordinates (mm); scatterers of every cell that touches it
+        are returned (a superset), so callers crop with their own weights, then apply the
+        scattering map with :meth:`modulate` to the scatterers they keep.
+        """
+        lo = np.floor(np.asarray(lo, float) / self.cell_mm).astype(int)
+        hi = np.floor(np.asarray(hi, float) / self.cell_mm).astype(int)
+        n_per_cell = int(round(self.density_per_mm3 * self.cell_mm**3))
+        cells = np.stack(
+            np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(lo, hi, strict=True)],
+                        indexing="ij"), axis=-1
+        ).reshape(-1, 3)
+        pos = np.empty((len(cells) * n_per_cell, 3), np.float32)
+        amp = np.empty(len(cells) * n_per_cell, dtype=np.float32)
+        for c, idx in enumerate(cells):
+            # One generator per cell: the same cell always holds the same scatterers.
+            rng = np.random.default_rng([self.seed & 0xFFFFFFFF, *(int(v) + 2**20 for v in idx)])
+            sl = slice(c * n_per_cell, (c + 1) * n_per_cell)
+            pos[sl] = (idx + rng.random((n_per_cell, 3), dtype=np.float32)) * self.cell_mm
+            amp[sl] = rng.standard_normal(n_per_cell, dtype=np.float32)
+        return pos, amp
+
+    def modulate(self, pos: np.ndarray, amp: np.ndarray) -> np.ndarray:
+        """Scatterer amplitudes times the scattering map at their (tissue-frame) positions."""
+        if self.scattering_map.is_homogeneous:
+            return amp
+        return amp * self.scattering_map(pos)
+
+
+@dataclass(frozen=True)
+class NeedleSpec:
+    """Acoustic appearance of the needle (the physical mode of the scanner)."""
+
+    gauge: int = 18
+    echo: float = 60.0  # shaft echo per mm of shaft in the resolution cell, re unit speckle
+    specular_width_deg: float = 14.0  # width of the specular lobe (beam vs shaft normal)
+    diffuse_floor: float = 0.35  # fraction of the echo left far from the specular angle
+    reverb_decay: float = 0.55  # amplitude ratio of successive reverberation echoes
+    reverb_count: int = 6
+    reverb_spacing_mm: float | None = None  # defaults to the needle radius
+    shadow_factor: float = 0.35  # tissue amplitude left behind the shaft
+    tip_gain: float = 2.5  # bevel echo relative to one millimetre of shaft
+
+    @property
+    def radius_mm(self) -> float:
+        return needle_radius_mm(self.gauge)
+
+
+@dataclass(frozen=True)
+class NeedlePath:
+    """The needle's path in the tissue: straight or a bicycle-model arc (Carriere 2016).
+
+    The path starts at ``entry`` along ``direction`` and bends with curvature 1/R in the
+    plane spanned by ``direction`` and ``bend_direction``; the curvature changes sign at every
+    arc length in ``turn_lengths_mm`` (a 180-degree bevel rotation, Carriere 2016 eqs. 3-4).
+    ``theta0_deg`` is the initial angle of the tip to ``direction`` in the bending plane.
+    The needle follows its tip (follow-the-leader), so the shaft at insertion length s is the
+    path from 0 to s.
+    """
+
+    entry: np.ndarray
+    direction: np.ndarray
+    radius_of_curvature_mm: float = np.inf
+    bend_direction: np.ndarray | None = None
+    theta0_deg: float = 0.0
+    turn_lengths_mm: tuple[float, ...] = ()
+    max_length_mm: float = 250.0
+    step_mm: float = 0.05
+
+    def __post_init__(self) -> None:
+        d = np.asarray(self.direction, float)
+        if d.shape != (3,) or np.linalg.norm(d) == 0:
+            raise ValueError(f"NeedlePath.direction must be a non-zero 3-vector, got {d}")
+        d = d / np.linalg.norm(d)
+        object.__setattr__(self, "direction", d)
+        object.__setattr__(self, "entry", np.asarray(self.entry, float).reshape(3))
+        b = self.bend_direction
+        if b is None:
+            helper = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+            b = helper
+        b = np.asarray(b, float)
+        b = b - (b @ d) * d
+        if np.linalg.norm(b) < 1e-9:
+            raise ValueError("NeedlePath.bend_direction must not be parallel to direction")
+        object.__setattr__(self, "bend_direction", b / np.linalg.norm(b))
+        if self.radius_of_curvature_mm <= 0:
+            raise ValueError(
+                f"radius_of_curvature_mm must be positive, got {self.radius_of_curvature_mm}"
+            )
+        s = np.arange(0.0, self.max_length_mm + self.step_mm, self.step_mm)
+        kappa = np.full(len(s), 0.0 if np.isinf(self.radius_of_curvature_mm)
+                        else 1.0 / self.radius_of_curvature_mm)
+        for L in sorted(self.turn_lengths_mm):
+            kappa[s >= L] *= -1.0  # the bevel turned by 180 degrees: curvature flips
+        theta = np.deg2rad(self.theta0_deg) + np.concatenate(
+            [[0.0], np.cumsum(0.5 * (kappa[1:] + kappa[:-1]) * self.step_mm)]
+        )
+        tangent = np.cos(theta)[:, None] * d + np.sin(theta)[:, None] * self.bend_direction
+        pts = self.entry + np.concatenate(
+            [[np.zeros(3)], np.cumsum(0.5 * (tangent[1:] + tangent[:-1]) * self.step_mm, 0)]
+        )
+        object.__setattr__(self, "_s", s)
+        object.__setattr__(self, "_points", pts)
+        object.__setattr__(self, "_tangent", tangent)
+
+    def point_at(self, s: float | np.ndarray) -> np.ndarray:
+        s = np.clip(np.asarray(s, float), 0.0, self.max_length_mm)
+        return np.stack([np.interp(s, self._s, self._points[:, k]) for k in range(3)], -1)
+
+    def tangent_at(self, s: float | np.ndarray) -> np.ndarray:
+        s = np.clip(np.asarray(s, float), 0.0, self.max_length_mm)
+        t = np.stack([np.interp(s, self._s, self._tangent[:, k]) for k in range(3)], -1)
+        return t / np.linalg.norm(t, axis=-1, keepdims=True)
+
+    def samples(self, s_tip: float, step_mm: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Centreline points, unit tangents and arc lengths from the entry to ``s_tip``."""
+        s_tip = float(np.clip(s_tip, 0.0, self.max_length_mm))
+        n = max(int(np.ceil(s_tip / step_mm)), 1) + 1
+        s = np.linspace(0.0, s_tip, n)
+        return self.point_at(s), self.tangent_at(s), s
+
+
+@dataclass
+class World:
+    """Tissue, needle and their rigid motions over time.
+
+    ``tissue_pose[i]`` maps tissue coordinates to world coordinates at frame i (breathing,
+    phantom motion). The needle path is defined in tissue coordinates when
+    ``needle_in_tissue`` (the needle moves with the phantom, as in Chatelain 2013), otherwise
+    in world coordinates (held by a robot while the tissue moves under it).
+    """
+
+    tissue: Tissue
+    needle_path: NeedlePath | None
+    needle: NeedleSpec = field(default_factory=NeedleSpec)
+    needle_in_tissue: bool = True
+
+    def needle_to_world(self, tissue_pose: np.ndarray) -> np.ndarray:
+        return tissue_pose if self.needle_in_tissue else np.eye(4)
+
+    def needle_world(self, s_tip: float, tissue_pose: np.ndarray, step_mm: float):
+        """Centreline points and tangents of the inserted needle in world coordinates."""
+        if self.needle_path is None or s_tip <= 0:
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+        pts, tan, s = self.needle_path.samples(s_tip, step_mm)
+        T = self.needle_to_world(tissue_pose)
+        return apply_transform(T, pts), tan @ T[:3, :3].T, s
