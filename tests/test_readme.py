@@ -8,7 +8,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _commands():
     text = (ROOT / "README.md").read_text()
     blocks = text.split("```")
-    first = blocks[1].strip().splitlines()
+    first = blocks[1].strip().splitlines()[1:]  # drop the language tag
     return [line for line in first if line and not line.startswith("#")]
 
 
