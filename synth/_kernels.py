@@ -90,7 +90,7 @@ def splat(idx: np.ndarray, amp: np.ndarray, phase: np.ndarray, shape: tuple[int,
     return out
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True)
+@numba.njit(cache=True, nogil=True, fastmath=True, parallel=True)
 def scattering_amplitude(p, smooth, smooth_origin, smooth_step, int_normals, int_offsets,
                          int_factors, int_bright, line_a, line_b, line_radius, line_gain,
                          cyst_centers, cyst_radii, cyst_factor):  # pragma: no cover - compiled
@@ -102,7 +102,7 @@ def scattering_amplitude(p, smooth, smooth_origin, smooth_step, int_normals, int
     n = p.shape[0]
     out = np.empty(n, np.float32)
     has_smooth = smooth.shape[0] > 1
-    for i in range(n):
+    for i in numba.prange(n):
         x = p[i, 0]
         y = p[i, 1]
         z = p[i, 2]
@@ -290,3 +290,92 @@ def transform_splat_sector(pos, amp, R, t, origin_rpt, step_rpt, two_k,
                     w = wb * (fc if dc else 1.0 - fc)
                     out[ia + da, ib + db, ic + dc, 0] += w * re
                     out[ia + da, ib + db, ic + dc, 1] += w * im
+
+
+@numba.njit(inline="always")
+def _splitmix64(x):  # pragma: no cover - compiled
+    x = (x + np.uint64(0x9E3779B97F4A7C15)) & np.uint64(0xFFFFFFFFFFFFFFFF)
+    z = x
+    z = ((z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)) & np.uint64(
+        0xFFFFFFFFFFFFFFFF)
+    z = ((z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)) & np.uint64(
+        0xFFFFFFFFFFFFFFFF)
+    return z ^ (z >> np.uint64(31))
+
+
+@numba.njit(inline="always")
+def _unit(h):  # pragma: no cover - compiled
+    # the top 53 bits as a double in [0, 1)
+    return float(h >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def cell_scatterers(cells, n_per_cell, cell_mm, seed, pos, amp):  # pragma: no cover - compiled
+    """Scatterers of integer cells (C, 3): uniform positions and N(0, 1) amplitudes.
+
+    A counter-based generator (SplitMix64 of seed, cell and scatterer index): a cell always
+    holds the same scatterers, whichever region asked for it and in whatever order.
+    """
+    for c in numba.prange(cells.shape[0]):
+        key = _splitmix64(np.uint64(seed))
+        for d in range(3):
+            key = _splitmix64(key ^ np.uint64(cells[c, d] + 1048576))
+        for k in range(n_per_cell):
+            h1 = _splitmix64(key ^ np.uint64(4 * k + 1))
+            h2 = _splitmix64(h1 ^ np.uint64(4 * k + 2))
+            h3 = _splitmix64(h2 ^ np.uint64(4 * k + 3))
+            h4 = _splitmix64(h3 ^ np.uint64(4 * k + 4))
+            h5 = _splitmix64(h4 ^ np.uint64(4 * k + 5))
+            i = c * n_per_cell + k
+            pos[i, 0] = (cells[c, 0] + _unit(h1)) * cell_mm
+            pos[i, 1] = (cells[c, 1] + _unit(h2)) * cell_mm
+            pos[i, 2] = (cells[c, 2] + _unit(h3)) * cell_mm
+            u1 = max(_unit(h4), 1e-300)
+            u2 = _unit(h5)
+            amp[i] = np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)  # Box-Muller
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, parallel=True)
+def keep_plane(pos, R, t, lo, hi, origin_z, step_z, sig_e_rows):  # pragma: no cover
+    """Scatterers a plane probe can see: inside the box and within 3 sigma of the elevation
+    beam at their depth."""
+    out = np.zeros(pos.shape[0], np.bool_)
+    for n in numba.prange(pos.shape[0]):
+        qx = R[0, 0] * pos[n, 0] + R[0, 1] * pos[n, 1] + R[0, 2] * pos[n, 2] + t[0]
+        qy = R[1, 0] * pos[n, 0] + R[1, 1] * pos[n, 1] + R[1, 2] * pos[n, 2] + t[1]
+        qz = R[2, 0] * pos[n, 0] + R[2, 1] * pos[n, 1] + R[2, 2] * pos[n, 2] + t[2]
+        if qx < lo[0] or qy < lo[1] or qz < lo[2] or qx >= hi[0] or qy >= hi[1] or qz >= hi[2]:
+            continue
+        row = min(max(int((qz - origin_z) / step_z + 0.5), 0), sig_e_rows.shape[0] - 1)
+        out[n] = abs(qy) <= 3.0 * sig_e_rows[row]
+    return out
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, parallel=True)
+def keep_box(pos, R, t, lo, hi):  # pragma: no cover - compiled
+    out = np.zeros(pos.shape[0], np.bool_)
+    for n in numba.prange(pos.shape[0]):
+        qx = R[0, 0] * pos[n, 0] + R[0, 1] * pos[n, 1] + R[0, 2] * pos[n, 2] + t[0]
+        qy = R[1, 0] * pos[n, 0] + R[1, 1] * pos[n, 1] + R[1, 2] * pos[n, 2] + t[1]
+        qz = R[2, 0] * pos[n, 0] + R[2, 1] * pos[n, 1] + R[2, 2] * pos[n, 2] + t[2]
+        out[n] = not (qx < lo[0] or qy < lo[1] or qz < lo[2] or qx >= hi[0] or qy >= hi[1]
+                      or qz >= hi[2])
+    return out
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True, parallel=True)
+def keep_sector(pos, R, t, origin_rpt, step_rpt, shape):  # pragma: no cover - compiled
+    out = np.zeros(pos.shape[0], np.bool_)
+    for n in numba.prange(pos.shape[0]):
+        qx = R[0, 0] * pos[n, 0] + R[0, 1] * pos[n, 1] + R[0, 2] * pos[n, 2] + t[0]
+        qy = R[1, 0] * pos[n, 0] + R[1, 1] * pos[n, 1] + R[1, 2] * pos[n, 2] + t[1]
+        qz = R[2, 0] * pos[n, 0] + R[2, 1] * pos[n, 1] + R[2, 2] * pos[n, 2] + t[2]
+        r = np.sqrt(qx * qx + qy * qy + qz * qz)
+        if r <= 0.0 or qz <= 0.0:
+            continue
+        a = (r - origin_rpt[0]) / step_rpt[0]
+        b = (np.arctan2(qy, qz) - origin_rpt[1]) / step_rpt[1]
+        c = (np.arcsin(min(max(qx / r, -1.0), 1.0)) - origin_rpt[2]) / step_rpt[2]
+        out[n] = (a >= -1.0 and b >= -1.0 and c >= -1.0 and a < shape[0] and b < shape[1]
+                  and c < shape[2])
+    return out

@@ -51,7 +51,7 @@ def random_scattering_map(rng: np.random.Generator, lo, hi, background: str,
     K = 16
     dirs = rng.normal(size=(K, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    wavelengths = rng.uniform(4.0, 25.0, K)
+    wavelengths = rng.uniform(6.0, 30.0, K)
     wave_vectors = dirs * (2 * np.pi / wavelengths)[:, None]
 
     def point(n):

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._geometry import apply_transform
-from ._kernels import scattering_amplitude
+from ._kernels import cell_scatterers, scattering_amplitude
 
 __all__ = [
     "GAUGE_OUTER_DIAMETER_MM",
@@ -73,7 +73,7 @@ class ScatteringMap:
     cyst_radii: np.ndarray = field(default_factory=lambda: np.zeros(0))
     cyst_factor: float = 0.03
 
-    _SMOOTH_STEP_MM = 0.5
+    _SMOOTH_STEP_MM = 1.0
 
     @property
     def is_homogeneous(self) -> bool:
@@ -93,7 +93,7 @@ class ScatteringMap:
 
         smooth, origin = np.ones((1, 1, 1)), np.zeros(3)
         if self.smooth_sigma > 0 and len(self.wave_phases) and len(p):
-            # The smooth field on a global 0.5 mm lattice (aligned to the origin, so a point
+            # The smooth field on a global 1 mm lattice (aligned to the origin, so a point
             # gets the same value whatever region is asked for), read by interpolation.
             h = self._SMOOTH_STEP_MM
             lo = np.floor(p.min(0) / h) * h
@@ -138,8 +138,8 @@ class Tissue:
         are returned (a superset), so callers crop with their own weights, then apply the
         scattering map with :meth:`modulate` to the scatterers they keep.
         """
-        lo = np.floor(np.asarray(lo, float) / self.cell_mm).astype(int)
-        hi = np.floor(np.asarray(hi, float) / self.cell_mm).astype(int)
+        lo = np.floor(np.asarray(lo, float) / self.cell_mm).astype(np.int64)
+        hi = np.floor(np.asarray(hi, float) / self.cell_mm).astype(np.int64)
         n_per_cell = int(round(self.density_per_mm3 * self.cell_mm**3))
         cells = np.stack(
             np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(lo, hi, strict=True)],
@@ -147,12 +147,8 @@ class Tissue:
         ).reshape(-1, 3)
         pos = np.empty((len(cells) * n_per_cell, 3), np.float32)
         amp = np.empty(len(cells) * n_per_cell, dtype=np.float32)
-        for c, idx in enumerate(cells):
-            # One generator per cell: the same cell always holds the same scatterers.
-            rng = np.random.default_rng([self.seed & 0xFFFFFFFF, *(int(v) + 2**20 for v in idx)])
-            sl = slice(c * n_per_cell, (c + 1) * n_per_cell)
-            pos[sl] = (idx + rng.random((n_per_cell, 3), dtype=np.float32)) * self.cell_mm
-            amp[sl] = rng.standard_normal(n_per_cell, dtype=np.float32)
+        cell_scatterers(np.ascontiguousarray(cells), n_per_cell, float(self.cell_mm),
+                        int(self.seed) & 0x7FFFFFFFFFFFFFFF, pos, amp)
         return pos, amp
 
     def modulate(self, pos: np.ndarray, amp: np.ndarray) -> np.ndarray:
