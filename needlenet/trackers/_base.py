@@ -1,0 +1,116 @@
+"""One interface for every tracker: detect, predict an ROI/VOI, measure, filter, notice a
+lost needle and find it again; report status, tip, direction, covariance and latency."""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from ..features._base import FeatureSource, Frame, FrameError, check_frame
+
+__all__ = ["Status", "NeedleEstimate", "Tracker", "frames_from_sequence"]
+
+
+class Status(str, Enum):
+    SEARCHING = "searching"  # no needle found yet (or re-detecting after a reset)
+    TRACKING = "tracking"
+    LOST = "lost"  # was tracking; the needle left the image or vanished
+
+
+@dataclass
+class NeedleEstimate:
+    """A tracker's output for one frame. Points are in millimetres, point order, probe frame
+    ((x, z) for 2D, (x, y, z) for 3D), like the sequence file's labels."""
+
+    t: float
+    status: Status
+    tip_mm: np.ndarray | None = None
+    direction: np.ndarray | None = None  # unit vector from entry towards the tip
+    covariance: np.ndarray | None = None  # of the tip, mm^2
+    latency_ms: float = 0.0
+    extras: dict = field(default_factory=dict)  # method-specific (axis, entry, shape, ...)
+
+    def to_json(self) -> dict:
+        def arr(v):
+            return None if v is None else np.asarray(v, float).round(6).tolist()
+
+        out = {"t": float(self.t), "status": self.status.value, "tip_mm": arr(self.tip_mm),
+               "direction": arr(self.direction), "covariance": arr(self.covariance),
+               "latency_ms": float(self.latency_ms)}
+        for k, v in self.extras.items():
+            if isinstance(v, np.ndarray):
+                v = arr(v)
+            elif isinstance(v, (np.floating, np.integer)):
+                v = v.item()
+            out[k] = v
+        return out
+
+
+class Tracker(ABC):
+    """Base class: subclasses implement :meth:`_step`; :meth:`update` adds timing and turns a
+    frame that cannot be measured into a ``lost``/``searching`` report instead of a crash."""
+
+    modality: str = ""
+    methods: tuple[str, ...] = ()
+
+    def __init__(self, method: str, features: FeatureSource | None = None):
+        if method not in self.methods:
+            raise ValueError(f"{type(self).__name__}: unknown method {method!r}; "
+                             f"choose one of {', '.join(self.methods)}")
+        self.method = method
+        self.features = features if features is not None else self.default_features()
+        self.status = Status.SEARCHING
+        self.reset()
+
+    @classmethod
+    def default_features(cls) -> FeatureSource:
+        from ..features._base import IntensityFeatures
+
+        return IntensityFeatures()
+
+    def reset(self) -> None:
+        """Forget everything: the next frame starts a new detection."""
+        self.status = Status.SEARCHING
+
+    def update(self, frame: Frame) -> NeedleEstimate:
+        t0 = time.perf_counter()
+        try:
+            check_frame(frame)
+            est = self._step(frame)
+        except FrameError as exc:
+            self.status = Status.LOST if self.status == Status.TRACKING else self.status
+            est = NeedleEstimate(t=frame.t, status=self.status, extras={"reason": str(exc)})
+        est.latency_ms = (time.perf_counter() - t0) * 1e3
+        self.status = est.status
+        return est
+
+    @abstractmethod
+    def _step(self, frame: Frame) -> NeedleEstimate:
+        """Process one frame (already checked) and return the estimate."""
+
+    def run(self, seq, progress=None) -> list[NeedleEstimate]:
+        """Track every frame of a :class:`synth.Sequence`."""
+        out = []
+        for frame in frames_from_sequence(seq):
+            out.append(self.update(frame))
+            if progress is not None:
+                progress()
+        return out
+
+
+def frames_from_sequence(seq):
+    """Frames of a sequence; a robot's insertion-speed measurement is passed along when the
+    sequence's meta records one (``meta['params']['speed_mm_s']``)."""
+    grid = seq.grid()
+    speed = None
+    params = seq.meta.get("params", {}) if isinstance(seq.meta, dict) else {}
+    draw = seq.meta.get("draw", {}) if isinstance(seq.meta, dict) else {}
+    speed = draw.get("speed_mm_s", params.get("speed_mm_s"))
+    for i in range(seq.n_frames):
+        yield Frame(image=seq.images[i], grid=grid, t=float(seq.timestamps_s[i]), index=i,
+                    insertion_speed_mm_s=None if speed is None else float(speed),
+                    probe_pose=None if seq.probe_pose is None else seq.probe_pose[i])
