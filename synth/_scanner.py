@@ -59,7 +59,7 @@ class ImagingParams:
     tgc_compensation: float = 1.0  # fraction of the attenuation that TGC gives back
     noise_db: float = -45.0  # electronic noise RMS re unit-echogenicity speckle RMS
     dynamic_range_db: float = 60.0
-    tissue_gray: float = 90.0  # mean gray level of unit-echogenicity speckle
+    tissue_gray: float = 100.0  # mean gray level of unit-echogenicity speckle
     speed_of_sound_m_s: float = 1540.0
     scatterers_per_cell: float = 40.0  # per resolution cell (FWHM box), at the smallest cell
     max_density_per_mm3: float = 2000.0

@@ -28,8 +28,8 @@ CASES = [
 def _speckle_rows(seed: int) -> list[dict]:
     p = synth.ImagingParams(noise_db=-200.0)
     z0 = p.tx_focus_mm
-    probe = synth.PlaneProbe(width_mm=16, depth_mm=6, spacing_mm=(0.025, 0.05),
-                             depth_start_mm=z0 - 3)
+    probe = synth.PlaneProbe(width_mm=24, depth_mm=8, spacing_mm=(0.025, 0.05),
+                             depth_start_mm=z0 - 4)
     world = synth.World(synth.Tissue(p.scatterer_density(probe.range_of_rows()), seed), None)
     iq = synth.Scanner(probe, p, world).tissue_iq(np.eye(4))
     env = np.hypot(iq[..., 0], iq[..., 1])[20:-20, 20:-20]

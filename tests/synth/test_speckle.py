@@ -11,8 +11,8 @@ Z0 = 25.0  # the transmit focus of the default scanner
 @pytest.fixture(scope="module")
 def homogeneous():
     p = synth.ImagingParams(noise_db=-200.0)
-    probe = synth.PlaneProbe(width_mm=16, depth_mm=6, spacing_mm=(0.025, 0.05),
-                             depth_start_mm=Z0 - 3)
+    probe = synth.PlaneProbe(width_mm=24, depth_mm=8, spacing_mm=(0.025, 0.05),
+                             depth_start_mm=Z0 - 4)
     world = synth.World(synth.Tissue(p.scatterer_density(probe.range_of_rows()), 7), None)
     sc = synth.Scanner(probe, p, world)
     iq = sc.tissue_iq(np.eye(4))
