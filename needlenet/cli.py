@@ -127,6 +127,168 @@ def _cmd_synth(args) -> int:
     return 0
 
 
+# -- track --------------------------------------------------------------------------------
+
+def _add_track(sub) -> None:
+    p = sub.add_parser("track", help="track the needle in a sequence file",
+                       description="Run a tracker on a sequence file; with labels, report the "
+                                   "paper's metrics.")
+    p.add_argument("file", help="sequence file (.npz)")
+    p.add_argument("--tracker", required=True, choices=["inplane", "volume", "axial"])
+    p.add_argument("--method", required=True,
+                   help="inplane: df om om+f kf kf+f pf pf+f kfv kfv+f pfv pfv+f; "
+                        "volume: ransac roi-rk chatelain; axial: carriere")
+    p.add_argument("--features", default="classical", choices=["classical", "learned"])
+    p.add_argument("--model", help="an ONNX model instead of the shipped one")
+    p.add_argument("--json", dest="json_out", help="write per-frame results and the summary")
+    p.add_argument("--overlay", help="write an overlay animation (.gif, .mp4 or .avi)")
+    p.add_argument("--seed", type=int, default=0, help="seed of randomised methods")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_track)
+
+
+def _cmd_track(args) -> int:
+    import json
+
+    import synth
+
+    from .eval import evaluate, latency_summary
+    from .trackers._registry import make_tracker, tracker_class
+
+    out_json = _check_output(args.json_out, ".json", args.overwrite, "--json")
+    overlay = None
+    if args.overlay:
+        suffix = Path(args.overlay).suffix.lower()
+        if suffix not in (".gif", ".mp4", ".avi"):
+            raise CLIError(f"--overlay {args.overlay}: use .gif, .mp4 or .avi")
+        overlay = _check_output(args.overlay, suffix, args.overwrite, "--overlay")
+    cls = tracker_class(args.tracker)
+    if args.method not in cls.methods:
+        raise CLIError(f"track: tracker {args.tracker!r} has no method {args.method!r}; "
+                       f"choose one of {', '.join(cls.methods)}")
+    try:
+        seq = synth.load_sequence(args.file)
+    except synth.SequenceFileError as exc:
+        raise CLIError(str(exc)) from None
+    if seq.modality != args.tracker:
+        raise CLIError(f"track: {args.file} holds {seq.modality!r} frames "
+                       f"({seq.ndim}D); the {args.tracker!r} tracker needs "
+                       f"{'3D volumes' if args.tracker == 'volume' else args.tracker + ' images'}")
+    kw = {"seed": args.seed} if "seed" in cls.__init__.__code__.co_varnames else {}
+    try:
+        tracker = make_tracker(args.tracker, args.method, args.features, args.model, **kw)
+    except (ValueError, FileNotFoundError) as exc:
+        raise CLIError(f"track: {exc}") from None
+    from synth._render import Progress
+
+    bar = Progress(seq.n_frames, f"track {args.tracker}/{args.method}", not args.quiet)
+    estimates = tracker.run(seq, progress=bar.update)
+    summary = {"file": str(args.file), "tracker": args.tracker, "method": args.method,
+               "features": args.features, "frames": seq.n_frames}
+    if seq.has_labels:
+        summary.update(evaluate(args.tracker, estimates, seq)["summary"])
+    else:
+        summary.update(latency_summary(estimates))
+    statuses = [e.status.value for e in estimates]
+    summary["status_counts"] = {s: statuses.count(s) for s in sorted(set(statuses))}
+    print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}, indent=1))
+    if out_json is not None:
+        out_json.write_text(json.dumps({"frames": [e.to_json() for e in estimates],
+                                        "summary": summary}, indent=1, default=float))
+        print(f"wrote {out_json}")
+    if overlay is not None:
+        from .io import write_overlay
+
+        write_overlay(overlay, seq, estimates)
+        print(f"wrote {overlay}")
+    return 0
+
+
+# -- train / export -----------------------------------------------------------------------
+
+_TRAIN_EXTRA = ("needs the training extra (torch, lightning, onnx): "
+                "pip install torch==2.13.0 && pip install 'needlenet[train]'")
+
+
+def _require_training(cmd: str) -> None:
+    import importlib.util
+
+    missing = [m for m in ("torch", "lightning", "onnx") if importlib.util.find_spec(m) is None]
+    if missing:
+        raise CLIError(f"{cmd} {_TRAIN_EXTRA} (missing: {', '.join(missing)})")
+
+
+def _add_train(sub) -> None:
+    p = sub.add_parser("train", help="train a needle likelihood network on synth data",
+                       description="Train a likelihood network (shaft and tip maps) on "
+                                   "sequences simulated on the fly. " + _TRAIN_EXTRA)
+    p.add_argument("model", help="inplane, axial or volume")
+    p.add_argument("--steps", type=int, help="optimisation steps (default: the shipped recipe)")
+    p.add_argument("--out", help="output directory (default runs/MODEL)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=1, help="data-generating processes")
+    p.add_argument("--export", help="also export the result to this .onnx file")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=_cmd_train)
+
+
+def _cmd_train(args) -> int:
+    if args.model not in ("inplane", "axial", "volume"):
+        raise CLIError(f"train: unknown model {args.model!r}; choose inplane, axial or volume")
+    if args.steps is not None and args.steps < 1:
+        raise CLIError(f"train: --steps must be positive, got {args.steps}")
+    export = _check_output(args.export, ".onnx", args.overwrite, "--export")
+    _require_training("train")
+    from training.train import config_for, train
+
+    changes = {"seed": args.seed, "num_workers": args.workers}
+    if args.steps is not None:
+        changes["steps"] = args.steps
+    if args.out:
+        changes["out_dir"] = args.out
+    cfg = config_for(args.model, **changes)
+    out = Path(cfg.out_dir)
+    if (out / "model.ckpt").exists() and not args.overwrite:
+        raise CLIError(f"train: {out / 'model.ckpt'} exists; pass --overwrite or --out DIR")
+    metrics = train(cfg)
+    for k, v in metrics.items():
+        print(f"{k}: {v}")
+    if export is not None:
+        from training.export import export_onnx, load_checkpoint
+
+        net, hp = load_checkpoint(metrics["checkpoint"])
+        r = export_onnx(net, hp["modality"], hp["spacing_mm"], export, overwrite=args.overwrite,
+                        extra_metadata={"train_steps": cfg.steps, "train_seed": args.seed})
+        print(f"wrote {export} ({r['bytes']} bytes, onnxruntime vs torch {r['max_abs_diff']:.1e})")
+    return 0
+
+
+def _add_export(sub) -> None:
+    p = sub.add_parser("export", help="export a training checkpoint to ONNX",
+                       description="Export a checkpoint to ONNX (input 'image', output "
+                                   "'likelihood', dynamic spatial axes), verified against torch.")
+    p.add_argument("checkpoint")
+    p.add_argument("--out", required=True, help="the .onnx file")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=_cmd_export)
+
+
+def _cmd_export(args) -> int:
+    out = _check_output(args.out, ".onnx", args.overwrite, "--out")
+    _require_training("export")
+    from training.export import ExportError, export_onnx, load_checkpoint
+
+    try:
+        net, hp = load_checkpoint(args.checkpoint)
+        r = export_onnx(net, hp["modality"], hp["spacing_mm"], out, overwrite=args.overwrite)
+    except (ValueError, ExportError) as exc:
+        raise CLIError(f"export: {exc}") from None
+    print(f"wrote {out} ({r['bytes']} bytes, opset {r['opset']}, IR {r['ir_version']}, "
+          f"onnxruntime vs torch {r['max_abs_diff']:.1e})")
+    return 0
+
+
 # -- bench --------------------------------------------------------------------------------
 
 def _add_bench(sub) -> None:
@@ -164,6 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"needlenet {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     _add_synth(sub)
+    _add_track(sub)
+    _add_train(sub)
+    _add_export(sub)
     _add_bench(sub)
     return parser
 

@@ -107,6 +107,10 @@ class _Base:
     noise_db: float = -45.0
     dynamic_range_db: float = 60.0
     scatterers_per_cell: float = 40.0
+    # any ImagingParams / NeedleSpec field, e.g. {"center_frequency_mhz": 7.5}: training
+    # randomises the imaging through these
+    imaging_overrides: dict = field(default_factory=dict)
+    needle_overrides: dict = field(default_factory=dict)
 
     modality = "inplane"
     paper = ""
@@ -127,11 +131,22 @@ class _Base:
         _check_positive("dynamic_range_db", self.dynamic_range_db)
 
     def imaging(self) -> ImagingParams:
-        return ImagingParams(noise_db=self.noise_db, dynamic_range_db=self.dynamic_range_db,
-                             scatterers_per_cell=self.scatterers_per_cell)
+        return self._with_overrides(ImagingParams(
+            noise_db=self.noise_db, dynamic_range_db=self.dynamic_range_db,
+            scatterers_per_cell=self.scatterers_per_cell))
+
+    def _with_overrides(self, params: ImagingParams) -> ImagingParams:
+        try:
+            return dataclasses.replace(params, **self.imaging_overrides)
+        except TypeError as exc:
+            raise ValueError(f"imaging_overrides: {exc}") from None
 
     def needle_spec(self, rng) -> NeedleSpec:
-        return NeedleSpec(gauge=self.gauge, echo=self.needle_echo)
+        try:
+            return dataclasses.replace(NeedleSpec(gauge=self.gauge, echo=self.needle_echo),
+                                       **self.needle_overrides)
+        except TypeError as exc:
+            raise ValueError(f"needle_overrides: {exc}") from None
 
 
 def _n_frames(p, default: int) -> int:
@@ -278,12 +293,11 @@ class VolumeScenario(_Base):
     paper = "Zhao 2013"
 
     def imaging(self) -> ImagingParams:
-        return ImagingParams(center_frequency_mhz=self.center_frequency_mhz, f_number=1.2,
-                             tx_f_number=2.0, tx_focus_mm=30.0, elevation_f_number=2.2,
-                             elevation_focus_mm=30.0, noise_db=self.noise_db,
-                             dynamic_range_db=self.dynamic_range_db,
-                             scatterers_per_cell=self.scatterers_per_cell,
-                             tissue_gray=self.tissue_gray)
+        return self._with_overrides(ImagingParams(
+            center_frequency_mhz=self.center_frequency_mhz, f_number=1.2, tx_f_number=2.0,
+            tx_focus_mm=30.0, elevation_f_number=2.2, elevation_focus_mm=30.0,
+            noise_db=self.noise_db, dynamic_range_db=self.dynamic_range_db,
+            scatterers_per_cell=self.scatterers_per_cell, tissue_gray=self.tissue_gray))
 
     def probe(self) -> SectorProbe:
         n = int(self.output_size)

@@ -1,0 +1,115 @@
+"""Learned features: an ONNX model run with onnxruntime as a FeatureSource.
+
+The model carries in its metadata the spacing it was trained at, the intensity normalisation
+and its modality. Each frame (or ROI) is resampled to the model's spacing, padded to the
+network's multiple, run, and its shaft and tip maps are mapped back to the frame's grid.
+"""
+
+from __future__ import annotations
+
+import json
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from ._base import FeatureSource, Frame, Likelihood
+from ._resample import pad_to_multiple, to_frame_grid, to_model_grid
+
+__all__ = ["LearnedFeatures", "ModelError", "shipped_model_path", "SHIPPED_MODELS"]
+
+SHIPPED_MODELS = {"inplane": "inplane.onnx", "axial": "axial.onnx", "volume": "volume.onnx"}
+
+
+class ModelError(ValueError):
+    """A model file that is missing, corrupt, or made for another modality."""
+
+
+def shipped_model_path(modality: str) -> Path:
+    if modality not in SHIPPED_MODELS:
+        raise ModelError(f"no shipped model for modality {modality!r}; "
+                         f"there are: {', '.join(SHIPPED_MODELS)}")
+    p = Path(str(resources.files("needlenet") / "models" / SHIPPED_MODELS[modality]))
+    if not p.exists():
+        raise ModelError(f"the shipped {modality} model {p} is missing from this installation")
+    return p
+
+
+class LearnedFeatures(FeatureSource):
+    """Shaft and tip probability maps from an ONNX model.
+
+    ``threads``: onnxruntime intra-op threads (the session is set up for low latency:
+    sequential execution, all graph optimisations, no thread spinning between calls).
+    ``margin_mm``: context added around an ROI before inference.
+    """
+
+    kind = "learned"
+
+    def __init__(self, model: str | Path, modality: str | None = None, threads: int = 2,
+                 margin_mm: float = 6.0):
+        import onnxruntime as ort
+
+        path = Path(model)
+        if not path.exists():
+            raise ModelError(f"model {path} does not exist")
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = int(threads)
+        opts.inter_op_num_threads = 1
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        try:
+            self.session = ort.InferenceSession(str(path), opts,
+                                                providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise ModelError(f"model {path} cannot be loaded by onnxruntime: "
+                             f"{str(exc).splitlines()[0]}") from None
+        meta = self.session.get_modelmeta().custom_metadata_map
+        try:
+            self.modality = meta["modality"]
+            self.spacing_mm = tuple(float(v) for v in json.loads(meta["spacing_mm"]))
+            norm = json.loads(meta["normalization"])
+            self.scale, self.mean, self.std = (float(norm["scale"]), float(norm["mean"]),
+                                               float(norm["std"]))
+            self.stride = int(meta.get("output_stride", 2))
+            self.multiple = int(meta.get("input_multiple", 4))
+        except (KeyError, ValueError, TypeError) as exc:
+            raise ModelError(f"model {path}: metadata key {exc} missing or invalid; "
+                             "was it written by 'needlenet export'?") from None
+        if modality is not None and modality != self.modality:
+            raise ModelError(f"model {path} is a {self.modality!r} model, not {modality!r}")
+        inputs = [i.name for i in self.session.get_inputs()]
+        outputs = [o.name for o in self.session.get_outputs()]
+        if inputs != ["image"] or outputs != ["likelihood"]:
+            raise ModelError(f"model {path}: expected input 'image' and output 'likelihood', "
+                             f"got {inputs} -> {outputs}")
+        self.path = path
+        self.name = f"learned:{path.name}"
+        self.margin_mm = float(margin_mm)
+        self.version = meta.get("needlenet_version", "")
+
+    def run_model(self, image: np.ndarray, spacing_mm) -> np.ndarray:
+        """Maps (2, *image.shape) in [0, 1] for an image at ``spacing_mm``."""
+        x = to_model_grid(image, spacing_mm, self.spacing_mm)
+        x = (x * np.float32(self.scale) - np.float32(self.mean)) / np.float32(self.std)
+        xp, crop = pad_to_multiple(x, self.multiple)
+        y = self.session.run(["likelihood"], {"image": xp[None, None].astype(np.float32)})[0][0]
+        up = to_frame_grid(y, xp.shape)  # stride-2 output back to the padded model grid
+        up = up[(slice(None),) + crop]
+        return np.clip(to_frame_grid(up, image.shape), 0.0, 1.0)
+
+    def likelihood(self, frame: Frame, roi: tuple[slice, ...] | None = None) -> Likelihood:
+        im = np.asarray(frame.image)
+        sp = frame.grid.spacing_mm
+        if roi is None:
+            maps = self.run_model(im, sp)
+            return Likelihood(shaft=maps[0], tip=maps[1], source=self.name)
+        # an ROI: add context, run on the crop, paste into empty full-size maps
+        m = [int(np.ceil(self.margin_mm / s)) for s in sp]
+        big = tuple(slice(max((r.start or 0) - k, 0), min((r.stop or n) + k, n))
+                    for r, k, n in zip(roi, m, im.shape, strict=True))
+        maps = self.run_model(im[big], sp)
+        shaft = np.zeros(im.shape, np.float32)
+        tip = np.zeros(im.shape, np.float32)
+        shaft[big], tip[big] = maps[0], maps[1]
+        return Likelihood(shaft=shaft, tip=tip, source=self.name)

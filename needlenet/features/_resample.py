@@ -1,0 +1,64 @@
+"""Resampling between a frame's grid and a model's grid: one implementation, used by the
+runtime (learned feature source) and by training, so both see the same images."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["model_shape", "to_model_grid", "to_frame_grid", "pad_to_multiple"]
+
+
+def model_shape(shape, spacing_mm, model_spacing_mm) -> tuple[int, ...]:
+    """Array shape of a frame of ``shape`` at ``spacing_mm`` resampled to the model spacing."""
+    return tuple(max(int(round(n * s / m)), 1)
+                 for n, s, m in zip(shape, spacing_mm, model_spacing_mm, strict=True))
+
+
+def _resize2d(a: np.ndarray, shape: tuple[int, int], order: int) -> np.ndarray:
+    if tuple(a.shape) == tuple(shape):
+        return a
+    if order == 0:
+        interp = cv2.INTER_NEAREST
+    elif shape[0] <= a.shape[0] and shape[1] <= a.shape[1]:
+        interp = cv2.INTER_AREA  # shrinking: average, do not alias the speckle
+    else:
+        interp = cv2.INTER_LINEAR
+    return cv2.resize(a, (shape[1], shape[0]), interpolation=interp)
+
+
+def _resize(a: np.ndarray, shape: tuple[int, ...], order: int) -> np.ndarray:
+    """Linear (or nearest) resampling with half-pixel centres; separable passes in 3D."""
+    if tuple(a.shape) == tuple(shape):
+        return a
+    if a.ndim == 2:
+        return _resize2d(a, shape, order)
+    d, h, w = a.shape
+    D, H, W = shape
+    if (h, w) != (H, W):  # in-plane, slice by slice
+        a = np.stack([_resize2d(a[k], (H, W), order) for k in range(d)])
+    if d != D:  # along depth: a (d, H*W) image resized to (D, H*W), in column blocks
+        flat = a.reshape(d, H * W)  # (OpenCV limits image widths to 32767)
+        a = np.concatenate([_resize2d(np.ascontiguousarray(flat[:, i:i + 8192]),
+                                      (D, min(8192, H * W - i)), order)
+                            for i in range(0, H * W, 8192)], axis=1).reshape(D, H, W)
+    return a
+
+
+def to_model_grid(image: np.ndarray, spacing_mm, model_spacing_mm) -> np.ndarray:
+    """A frame (uint8 or float, array order) resampled to the model's spacing, float32."""
+    a = np.asarray(image, np.float32)
+    return _resize(a, model_shape(a.shape, spacing_mm, model_spacing_mm), 1)
+
+
+def to_frame_grid(maps: np.ndarray, frame_shape) -> np.ndarray:
+    """Maps (C, *model_shape) back to the frame's shape (C, *frame_shape), linear."""
+    return np.stack([_resize(np.ascontiguousarray(m), tuple(frame_shape), 1) for m in maps])
+
+
+def pad_to_multiple(a: np.ndarray, multiple: int) -> tuple[np.ndarray, tuple[slice, ...]]:
+    """Pad the trailing spatial axes to a multiple (edge values); return the crop back."""
+    pads = [(0, (-n) % multiple) for n in a.shape]
+    if not any(p[1] for p in pads):
+        return a, tuple(slice(None) for _ in a.shape)
+    return np.pad(a, pads, mode="edge"), tuple(slice(0, n) for n in a.shape)

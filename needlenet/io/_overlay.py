@@ -1,0 +1,98 @@
+"""Overlay animations of tracking results: estimate in red, ground truth in green."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+__all__ = ["overlay_frames", "write_overlay"]
+
+_RED, _GREEN, _YELLOW, _WHITE = (40, 40, 255), (60, 220, 60), (0, 220, 255), (255, 255, 255)
+
+
+def _px(grid, pts_xz, scale):
+    idx = grid.points_to_index(np.asarray(pts_xz, float))
+    return tuple(int(round(v * scale + scale / 2)) for v in idx[::-1])
+
+
+def _frame_2d(seq, i, est, scale):
+    g = seq.grid()
+    img = cv2.cvtColor(np.ascontiguousarray(seq.images[i]), cv2.COLOR_GRAY2BGR)
+    img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_LINEAR)
+    if seq.tip_mm is not None and seq.visible is not None and seq.visible[i] and np.all(
+            np.isfinite(seq.tip_mm[i])):
+        cv2.circle(img, _px(g, seq.tip_mm[i], scale), max(3, 2 * scale), _GREEN, 1, cv2.LINE_AA)
+    if est is not None and est.tip_mm is not None:
+        tip = np.asarray(est.tip_mm, float)
+        c = _px(g, tip, scale)
+        cv2.drawMarker(img, c, _RED, cv2.MARKER_CROSS, max(8, 4 * scale), 1, cv2.LINE_AA)
+        if est.direction is not None and seq.modality == "inplane":
+            back = tip - 15.0 * np.asarray(est.direction, float)
+            cv2.line(img, _px(g, back, scale), c, _RED, 1, cv2.LINE_AA)
+    return img
+
+
+def _frame_3d(seq, i, est):
+    vol = seq.images[i]
+    g = seq.grid()
+    views = [vol.max(axis=1), vol.max(axis=2)]  # (z, x) and (z, y) projections
+    axes = [(2, 0), (1, 0)]
+    panels = []
+    for v, (ca, ra) in zip(views, axes, strict=True):
+        p = cv2.cvtColor(np.ascontiguousarray(v), cv2.COLOR_GRAY2BGR)
+        p = cv2.resize(p, None, fx=2, fy=2, interpolation=cv2.INTER_LINEAR)
+        for pt, col in ((None if seq.tip_mm is None else seq.tip_mm[i], _GREEN),
+                        (None if est is None else est.tip_mm, _RED)):
+            if pt is None or not np.all(np.isfinite(pt)):
+                continue
+            idx = g.points_to_index(np.asarray(pt, float))
+            cv2.circle(p, (int(idx[ca] * 2 + 1), int(idx[ra] * 2 + 1)), 6, col, 1, cv2.LINE_AA)
+        panels.append(p)
+    return np.hstack(panels)
+
+
+def overlay_frames(seq, estimates, max_size: int = 320) -> list[np.ndarray]:
+    """BGR images of every frame with the estimate (red) and the ground truth (green)."""
+    out = []
+    scale = max(1, int(max_size // max(seq.images.shape[1:3])))
+    for i in range(seq.n_frames):
+        est = estimates[i] if estimates is not None else None
+        img = _frame_3d(seq, i, est) if seq.ndim == 3 else _frame_2d(seq, i, est, scale)
+        status = est.status.value if est is not None else ""
+        cv2.putText(img, f"{i:4d} {status}", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, _YELLOW, 1,
+                    cv2.LINE_AA)
+        out.append(img)
+    return out
+
+
+def write_overlay(path: str | Path, seq, estimates, fps: float | None = None,
+                  max_frames: int = 300) -> Path:
+    """Write the overlay as an animated GIF (Pillow) or MP4/AVI (OpenCV), by extension."""
+    path = Path(path)
+    frames = overlay_frames(seq, estimates)
+    step = max(1, int(np.ceil(len(frames) / max_frames)))
+    frames = frames[::step]
+    if fps is None:
+        dt = np.median(np.diff(seq.timestamps_s)) if seq.n_frames > 1 else 0.05
+        fps = float(np.clip(1.0 / max(dt * step, 1e-3), 1.0, 30.0))
+    ext = path.suffix.lower()
+    if ext == ".gif":
+        from PIL import Image
+
+        ims = [Image.fromarray(cv2.cvtColor(f, cv2.COLOR_BGR2RGB)) for f in frames]
+        ims[0].save(path, save_all=True, append_images=ims[1:], duration=int(1000 / fps),
+                    loop=0, optimize=False)
+    elif ext in (".mp4", ".avi"):
+        h, w = frames[0].shape[:2]
+        fourcc = cv2.VideoWriter_fourcc(*("mp4v" if ext == ".mp4" else "MJPG"))
+        wr = cv2.VideoWriter(str(path), fourcc, fps, (w, h))
+        if not wr.isOpened():
+            raise OSError(f"overlay {path}: OpenCV cannot write {ext} here")
+        for f in frames:
+            wr.write(f)
+        wr.release()
+    else:
+        raise ValueError(f"overlay {path}: use .gif, .mp4 or .avi")
+    return path

@@ -1,0 +1,55 @@
+"""The learned FeatureSource: maps on the frame's grid, clear errors for bad models."""
+
+import numpy as np
+import pytest
+
+import synth
+from needlenet.features import Frame, LearnedFeatures, ModelError
+
+torch = pytest.importorskip("torch")
+
+
+@pytest.fixture(scope="module")
+def models(tmp_path_factory):
+    from training.export import export_onnx
+    from training.networks import NeedleNet2D, NeedleNet3D
+
+    d = tmp_path_factory.mktemp("models")
+    torch.manual_seed(0)
+    export_onnx(NeedleNet2D().eval(), "inplane", 0.2, d / "i.onnx")
+    export_onnx(NeedleNet3D().eval(), "volume", 0.5, d / "v.onnx")
+    return d
+
+
+@pytest.mark.parametrize("shape,spacing", [((101, 77), (0.13, 0.27)), ((64, 64), (0.2, 0.2)),
+                                           ((33, 250), (0.31, 0.09))])
+def test_maps_on_the_frame_grid(models, shape, spacing):
+    f = LearnedFeatures(models / "i.onnx", "inplane")
+    img = np.random.default_rng(0).integers(0, 255, shape, dtype=np.uint8)
+    lk = f.likelihood(Frame(img, synth.Grid(shape, spacing, (0.0, 0.0))))
+    assert lk.shaft.shape == shape and lk.tip.shape == shape
+    assert lk.shaft.min() >= 0 and lk.shaft.max() <= 1
+
+
+def test_volume_maps_and_roi(models):
+    f = LearnedFeatures(models / "v.onnx", "volume", margin_mm=1.0)
+    shape = (37, 29, 41)
+    img = np.random.default_rng(1).integers(0, 255, shape, dtype=np.uint8)
+    fr = Frame(img, synth.Grid(shape, (0.4, 0.6, 0.35), (0.0, 0.0, 0.0)))
+    full = f.likelihood(fr)
+    assert full.shaft.shape == shape
+    roi = (slice(10, 25), slice(5, 20), slice(12, 30))
+    part = f.likelihood(fr, roi=roi)
+    assert part.shaft.shape == shape
+    assert part.shaft[0, 0, 0] == 0.0  # outside the ROI and its context margin
+
+
+def test_bad_models_are_named(models, tmp_path):
+    with pytest.raises(ModelError, match="does not exist"):
+        LearnedFeatures(tmp_path / "none.onnx")
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(b"this is not a model")
+    with pytest.raises(ModelError, match="cannot be loaded"):
+        LearnedFeatures(bad)
+    with pytest.raises(ModelError, match="is a 'volume' model, not 'inplane'"):
+        LearnedFeatures(models / "v.onnx", "inplane")

@@ -1,0 +1,126 @@
+"""Training: networks, targets, a short run lowers the loss, export agrees with torch."""
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("lightning")
+pytest.importorskip("onnx")
+
+import synth  # noqa: E402
+from training.data import DataConfig, make_targets, sample_from_sequence  # noqa: E402
+from training.export import ExportError, export_onnx, load_checkpoint  # noqa: E402
+from training.module import shaft_auc, tip_error_mm  # noqa: E402
+from training.networks import NeedleNet2D, NeedleNet3D  # noqa: E402
+
+
+def test_network_shapes_and_size():
+    for net, shape in ((NeedleNet2D(), (2, 1, 64, 96)), (NeedleNet3D(), (1, 1, 32, 32, 48))):
+        y = net(torch.zeros(shape))
+        assert y.shape == (shape[0], 2, *[s // 2 for s in shape[2:]])
+        n = sum(p.numel() for p in net.parameters())
+        assert n * 4 < 200_000  # well under 1 MB of weights
+
+
+def test_targets_peak_on_the_needle():
+    seq = synth.generate("inplane", seed=2, frames=2, width_mm=20, depth_mm=25,
+                         start_length_mm=18, angle_deg=40, background="homogeneous")
+    g = seq.grid()
+    y = make_targets(seq, 1, g)
+    tip_idx = np.unravel_index(np.argmax(y[1]), g.shape)
+    assert np.linalg.norm(g.index_to_points(np.array(tip_idx)) - seq.tip_mm[1]) < 0.2
+    on = g.points_to_index(seq.tip_mm[1] - 3.0 * seq.direction[1])
+    assert y[0][tuple(np.rint(on).astype(int))] > 0.9  # on the shaft, 3 mm behind the tip
+    assert y[0].max() <= 1.0 and y[0].min() >= 0.0
+
+
+def test_auc_and_tip_error_by_hand():
+    t = np.array([1.0, 1.0, 0.0, 0.0])
+    assert shaft_auc(np.array([0.9, 0.8, 0.1, 0.2]), t) == 1.0
+    assert shaft_auc(np.array([0.1, 0.2, 0.9, 0.8]), t) == 0.0
+    assert shaft_auc(np.array([0.5, 0.2, 0.5, 0.1]), t) == pytest.approx(0.625)
+    a = np.zeros((10, 10))
+    b = np.zeros((10, 10))
+    a[3, 4] = 1
+    b[3, 7] = 1
+    assert tip_error_mm(a, b, 0.4) == pytest.approx(1.2)
+    assert np.isnan(tip_error_mm(a, np.zeros((10, 10)), 0.4))
+
+
+def test_sample_crop_is_a_multiple_and_normalised():
+    seq = synth.generate("inplane", seed=3, frames=1, width_mm=20, depth_mm=25)
+    cfg = DataConfig(crop=48, spacing_mm=0.2)
+    x, y = sample_from_sequence(seq, 0, cfg, np.random.default_rng(0))
+    assert x.shape == (1, 48, 48) and y.shape == (2, 24, 24)
+    assert abs(float(x.mean())) < 3
+
+
+def test_short_training_lowers_the_loss(tmp_path):
+    from training.train import config_for, train
+
+    cfg = config_for("inplane", steps=40, val_every=40, out_dir=str(tmp_path), crop=48,
+                     batch_size=6, frames_per_world=8, num_workers=0, val_frames=4,
+                     shuffle_buffer=24, lr=1e-2)
+    m = train(cfg)
+    assert m["loss_last"] < m["loss_first"]
+    assert (tmp_path / "model.ckpt").exists() and (tmp_path / "metrics.json").exists()
+
+
+def _random_bn(net):
+    g = torch.Generator().manual_seed(0)
+    for m in net.modules():
+        if isinstance(m, (torch.nn.BatchNorm2d, torch.nn.BatchNorm3d)):
+            m.running_mean.copy_(torch.rand(m.running_mean.shape, generator=g) - 0.5)
+            m.running_var.copy_(torch.rand(m.running_var.shape, generator=g) + 0.5)
+    return net
+
+
+@pytest.mark.parametrize("modality,net", [("inplane", NeedleNet2D), ("volume", NeedleNet3D)])
+def test_export_agrees_with_torch(tmp_path, modality, net):
+    import onnx
+    import onnxruntime as ort
+
+    torch.manual_seed(1)
+    n = _random_bn(net()).eval()
+    out = tmp_path / "m.onnx"
+    r = export_onnx(n, modality, 0.3, out)
+    assert r["max_abs_diff"] <= 1e-4
+    model = onnx.load(out)
+    meta = {p.key: p.value for p in model.metadata_props}
+    assert meta["modality"] == modality and "normalization" in meta and "spacing_mm" in meta
+    sess = ort.InferenceSession(str(out))
+    assert [i.name for i in sess.get_inputs()] == ["image"]
+    assert [o.name for o in sess.get_outputs()] == ["likelihood"]
+    dims = 3 if modality == "volume" else 2
+    x = np.random.default_rng(0).normal(size=(1, 1, *([24, 40, 32][:dims]))).astype(np.float32)
+    with torch.no_grad():
+        ref = torch.sigmoid(n(torch.from_numpy(x))).numpy()
+    assert np.abs(sess.run(None, {"image": x})[0] - ref).max() <= 1e-4
+
+
+def test_export_refuses_a_model_that_disagrees(tmp_path, monkeypatch):
+    import training.export as ex
+
+    monkeypatch.setattr(ex, "MAX_ABS_DIFF", -1.0)  # any difference is too much
+    out = tmp_path / "m.onnx"
+    with pytest.raises(ExportError, match="not written"):
+        ex.export_onnx(NeedleNet2D().eval(), "inplane", 0.2, out)
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_checkpoint_round_trip(tmp_path):
+    import lightning as L
+
+    from training.module import LikelihoodModule
+
+    net = _random_bn(NeedleNet2D()).eval()
+    mod = LikelihoodModule(net, "inplane", 0.2)
+    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False)
+    trainer.strategy.connect(mod)
+    trainer.save_checkpoint(tmp_path / "c.ckpt")
+    loaded, hp = load_checkpoint(tmp_path / "c.ckpt")
+    assert hp["modality"] == "inplane"
+    x = torch.randn(1, 1, 32, 32)
+    with torch.no_grad():
+        assert torch.allclose(loaded(x), net(x))

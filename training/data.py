@@ -1,0 +1,275 @@
+"""Training data generated on the fly by ``synth``: endless, seeded, widely randomised.
+
+Every world draws its scenario and imaging from one place (:func:`randomize`): insertion
+angles and speeds, contrast, gauge, depth, inhomogeneous backgrounds with bright distractors,
+tissue motion, needles partly out of plane, frames with no needle at all, and the scanner
+itself (centre frequency, bandwidth, f-numbers, foci, dynamic range, gain, TGC, noise,
+speckle density, needle echo, reverberation, shadow), so that the model does not learn one
+simulator's look. Frames are resampled to the model's spacing with the runtime's own function.
+
+Targets (on the network's output grid, half the input resolution): shaft = a Gaussian of the
+3D distance to the labelled centreline (sigma about the needle radius), tip = a Gaussian of the
+distance to the tip. Distances are taken in the probe frame in 3D, so a needle partly out of
+the image plane fades from the targets as it fades from the image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, IterableDataset
+
+import synth
+from needlenet.features._resample import to_model_grid
+
+from .networks import INPUT_MULTIPLE, OUTPUT_STRIDE
+
+__all__ = ["DataConfig", "randomize", "make_targets", "SynthStream", "SynthDataModule",
+           "sample_from_sequence", "validation_set", "INTENSITY_MEAN", "INTENSITY_STD"]
+
+# input normalisation: (uint8 / 255 - mean) / std, stored in the ONNX metadata
+INTENSITY_MEAN = 0.35
+INTENSITY_STD = 0.25
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    modality: str = "inplane"
+    spacing_mm: float = 0.2  # the model's pixel/voxel spacing (isotropic)
+    crop: int = 128  # input crop side (pixels/voxels at the model spacing)
+    frames_per_world: int = 12
+    shuffle_buffer: int = 96
+    batch_size: int = 16
+    seed: int = 0
+    num_workers: int = 1
+    val_frames: int = 64
+    val_seed: int = 10_000_000  # validation worlds: seeds never used in training
+
+
+def _u(rng, a, b):
+    return float(rng.uniform(a, b))
+
+
+def randomize(modality: str, rng: np.random.Generator) -> tuple[str, dict]:
+    """Every random choice of one training world: (scenario name, scenario overrides)."""
+    imaging = {
+        "center_frequency_mhz": _u(rng, 3.5, 10.0), "fractional_bandwidth": _u(rng, 0.4, 0.9),
+        "f_number": _u(rng, 1.3, 3.0), "tx_focus_mm": _u(rng, 10, 40),
+        "tx_f_number": _u(rng, 2.0, 4.0), "elevation_f_number": _u(rng, 3.0, 7.0),
+        "elevation_focus_mm": _u(rng, 10, 35), "attenuation_db_cm_mhz": _u(rng, 0.3, 0.9),
+        "tgc_compensation": _u(rng, 0.7, 1.1), "tissue_gray": _u(rng, 55, 130),
+    }
+    gauge = int(rng.choice([14, 16, 18, 19, 20, 21, 22]))
+    needle = {
+        "specular_width_deg": _u(rng, 8, 25), "diffuse_floor": _u(rng, 0.15, 0.6),
+        "reverb_decay": _u(rng, 0.25, 0.7), "reverb_count": int(rng.integers(1, 8)),
+        "shadow_factor": _u(rng, 0.2, 0.9), "tip_gain": _u(rng, 0.5, 4.0),
+    }
+    common = {
+        "background": "inhomogeneous" if rng.random() < 0.85 else "homogeneous",
+        "noise_db": _u(rng, -60, -30), "dynamic_range_db": _u(rng, 45, 75),
+        "scatterers_per_cell": _u(rng, 8, 16), "gauge": gauge,
+        "needle_echo": float(np.exp(rng.uniform(np.log(12), np.log(150)))),
+        "imaging_overrides": imaging, "needle_overrides": needle,
+    }
+    if modality == "inplane":
+        start = _u(rng, 0.0, 30.0)
+        return "inplane", {
+            **common, "angle_deg": _u(rng, 15, 70), "speed_mm_s": _u(rng, 3, 20),
+            "spacing_mm": _u(rng, 0.12, 0.3), "width_mm": _u(rng, 26, 40),
+            "depth_mm": _u(rng, 28, 50), "start_length_mm": start,
+            "stop_length_mm": start + 30.0, "out_of_plane_deg": _u(rng, -3, 3),
+            "elevation_offset_mm": float(rng.normal(0, 0.7)),
+            "tissue_motion_mm": _u(rng, 0, 2) if rng.random() < 0.3 else 0.0,
+        }
+    if modality == "axial":
+        if rng.random() < 0.3:
+            return "servo", {**common, "start_sample": int(rng.integers(150, 1900)),
+                             "spacing_mm": _u(rng, 0.2, 0.4), "width_mm": _u(rng, 26, 40),
+                             "depth_mm": _u(rng, 26, 40), "plane_lag_mm": _u(rng, -2.0, 2.0),
+                             "tip_depth_mm": _u(rng, 10, 25)}
+        ins = _u(rng, 15, 35)
+        return "axial", {
+            **common, "spacing_mm": _u(rng, 0.2, 0.4), "width_mm": _u(rng, 26, 40),
+            "depth_mm": _u(rng, 26, 40), "insertion_mm": ins,
+            "rotation_depth_mm": _u(rng, 5, ins), "radius_of_curvature_mm": _u(rng, 300, 3000),
+            "needle_depth_mm": _u(rng, 8, 25), "plane_lag_mm": _u(rng, -2.0, 1.5),
+            "theta0_deg": _u(rng, -3, 3),
+        }
+    if modality == "volume":
+        zhao = rng.random() < 0.5
+        vol = {**common, "output_size": int(rng.integers(56, 81)),
+               "background": "inhomogeneous" if rng.random() < 0.85 else "homogeneous",
+               "center_frequency_mhz": _u(rng, 2.5, 5.0)}
+        vol["imaging_overrides"] = {k: v for k, v in imaging.items()
+                                    if k not in ("center_frequency_mhz",)}
+        vol["imaging_overrides"]["tissue_gray"] = _u(rng, 25, 110)
+        if rng.random() < 0.2:
+            return "volume-motion", {**vol, "motion_mm": _u(rng, 0, 4),
+                                     "motion_deg": _u(rng, 0, 8)}
+        start = _u(rng, 0.0, 12.0)
+        return "volume", {
+            **vol, "zhao_mode": zhao, "cr": _u(rng, 1.5, 5.0) if zhao else None,
+            "alpha_deg": _u(rng, 0, 90), "beta_deg": _u(rng, 55, 85),
+            "start_length_mm": start, "stop_length_mm": start + _u(rng, 8, 25),
+            "volume_rate_hz": 2.0,
+        }
+    raise ValueError(f"unknown modality {modality!r}")
+
+
+def _distance_to_polyline(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Distance (mm) of points (N, 3) to a polyline (K, 3), vectorised over N and K."""
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    out = np.full(len(pts), np.inf)
+    for s in range(0, len(pts), 8192):
+        p = pts[s:s + 8192]
+        ap = p[:, None, :] - a[None]
+        t = np.clip(np.einsum("nkd,kd->nk", ap, ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
+        d = np.linalg.norm(ap - t[..., None] * ab[None], axis=-1)
+        out[s:s + 8192] = d.min(axis=1)
+    return out
+
+
+def make_targets(seq, i: int, grid: synth.Grid) -> np.ndarray:
+    """(2, *grid.shape) float32 targets on ``grid`` (the network's output grid) for frame i."""
+    radius = float(seq.meta.get("needle", {}).get("radius_mm", 0.5))
+    sigma_shaft = max(radius, 0.3)
+    sigma_tip = max(1.5 * grid.spacing_mm[0], 0.6)
+    axes = np.meshgrid(*[grid.axis_coords(a) for a in range(grid.ndim)], indexing="ij")
+    if grid.ndim == 2:  # (z, x) -> probe points (x, 0, z)
+        pts = np.stack([axes[1].ravel(), np.zeros(axes[0].size), axes[0].ravel()], -1)
+    else:
+        pts = np.stack([axes[2].ravel(), axes[1].ravel(), axes[0].ravel()], -1)
+    out = np.zeros((2, *grid.shape), np.float32)
+    cl = np.asarray(seq.centerline_mm[i], float)
+    length = float(np.linalg.norm(np.diff(cl, axis=0), axis=1).sum())
+    if length < 0.2:  # the needle has not entered the tissue
+        return out
+    d = _distance_to_polyline(pts, cl)
+    out[0] = np.exp(-0.5 * (d / sigma_shaft) ** 2).reshape(grid.shape)
+    tip3 = seq.tip_3d_mm[i] if seq.tip_3d_mm is not None else seq.tip_mm[i]
+    dt = np.linalg.norm(pts - np.asarray(tip3, float)[None], axis=1)
+    out[1] = np.exp(-0.5 * (dt / sigma_tip) ** 2).reshape(grid.shape)
+    return out
+
+
+def sample_from_sequence(seq, i: int, cfg: DataConfig, rng: np.random.Generator | None,
+                         crop: int | None = None):
+    """(image (1, *S), target (2, *S/2), positive mask) at the model spacing.
+
+    With ``rng`` a random crop of side ``crop`` (containing the needle 80% of the time when it
+    is there) and random flips of the lateral axes; without, the whole frame, padded to the
+    network's multiple.
+    """
+    g = seq.grid()
+    sp = (cfg.spacing_mm,) * g.ndim
+    img = to_model_grid(seq.images[i], g.spacing_mm, sp) / np.float32(255.0)
+    shape = np.asarray(img.shape)
+    crop_n = crop if crop is not None else cfg.crop
+    if rng is not None:
+        size = np.minimum(shape, crop_n)
+        size -= size % INPUT_MULTIPLE
+        hi = shape - size
+        if rng.random() < 0.8 and seq.visible is not None and seq.visible[i] and \
+                seq.tip_mm is not None and np.all(np.isfinite(seq.tip_mm[i])):
+            c = np.asarray(g.points_to_index(seq.tip_mm[i])) * np.asarray(g.spacing_mm) / sp
+            c = c + rng.normal(0, 0.25 * size)
+            lo = np.clip(np.rint(c - size / 2).astype(int), 0, hi)
+        else:
+            lo = np.array([int(rng.integers(0, h + 1)) for h in hi])
+    else:
+        size = shape + (-shape) % INPUT_MULTIPLE
+        lo = np.zeros(g.ndim, int)
+    sl = tuple(slice(int(a), int(a + n)) for a, n in zip(lo, size, strict=True))
+    x = img[sl]
+    if x.shape != tuple(int(n) for n in size):  # smaller than the crop: pad with edge values
+        x = np.pad(x, [(0, int(n - m)) for n, m in zip(size, x.shape, strict=True)],
+                   mode="edge")
+    origin = np.asarray(g.origin_mm) + lo * np.asarray(sp)
+    # output grid: stride-2 samples centred on input pixel pairs
+    out_shape = tuple(int(n) // OUTPUT_STRIDE for n in size)
+    out_grid = synth.Grid(out_shape, tuple(s * OUTPUT_STRIDE for s in sp),
+                          tuple(origin + 0.5 * (OUTPUT_STRIDE - 1) * np.asarray(sp)))
+    y = make_targets(seq, i, out_grid)
+    if rng is not None:
+        for ax in range(1, g.ndim):  # lateral (and elevation) flips keep the physics
+            if rng.random() < 0.5:
+                x = np.flip(x, ax)
+                y = np.flip(y, ax + 1)
+    x = (x - INTENSITY_MEAN) / INTENSITY_STD
+    return np.ascontiguousarray(x[None], np.float32), np.ascontiguousarray(y, np.float32)
+
+
+class SynthStream(IterableDataset):
+    """An endless, seeded stream of (image, target) samples from freshly simulated worlds."""
+
+    def __init__(self, cfg: DataConfig):
+        self.cfg = cfg
+
+    def __iter__(self):
+        info = torch.utils.data.get_worker_info()
+        wid = 0 if info is None else info.id
+        rng = np.random.default_rng([self.cfg.seed, wid])
+        buf: list = []
+        while True:
+            name, kw = randomize(self.cfg.modality, rng)
+            seed = int(rng.integers(0, self.cfg.val_seed))  # never a validation seed
+            try:
+                seq = synth.generate(name, seed=seed, frames=self.cfg.frames_per_world, **kw)
+            except ValueError:
+                continue  # a rare impossible draw (e.g. a needle that cannot fit): skip it
+            for i in rng.permutation(seq.n_frames):
+                buf.append(sample_from_sequence(seq, int(i), self.cfg, rng))
+            while len(buf) > self.cfg.shuffle_buffer // 2:
+                yield buf.pop(int(rng.integers(len(buf))))
+
+
+def validation_set(cfg: DataConfig, n_frames: int | None = None, cr: float | None = None,
+                   background: str = "inhomogeneous") -> list:
+    """Held-out frames from worlds with seeds never used in training (whole frames)."""
+    n = n_frames or cfg.val_frames
+    rng = np.random.default_rng([cfg.val_seed, 1])
+    out = []
+    k = 0
+    while len(out) < n:
+        name, kw = randomize(cfg.modality, rng)
+        kw["background"] = background
+        if cr is not None and name == "volume":
+            kw.update(zhao_mode=True, cr=cr)
+        seq = synth.generate(name, seed=cfg.val_seed + k, frames=4, **kw)
+        k += 1
+        for i in range(seq.n_frames):
+            x, y = sample_from_sequence(seq, i, cfg, rng, crop=cfg.crop)
+            out.append((x, y))
+    return out[:n]
+
+
+class SynthDataModule:
+    """A LightningDataModule over :class:`SynthStream` (imported lazily so this module is
+    importable where Lightning is missing)."""
+
+    def __new__(cls, cfg: DataConfig):
+        import lightning as L
+
+        class _DM(L.LightningDataModule):
+            def __init__(self, cfg):
+                super().__init__()
+                self.cfg = cfg
+                self.val = None
+
+            def setup(self, stage=None):
+                if self.val is None:
+                    self.val = validation_set(self.cfg)
+
+            def train_dataloader(self):
+                return DataLoader(SynthStream(self.cfg), batch_size=self.cfg.batch_size,
+                                  num_workers=self.cfg.num_workers,
+                                  persistent_workers=self.cfg.num_workers > 0)
+
+            def val_dataloader(self):
+                return DataLoader(self.val, batch_size=1)
+
+        return _DM(cfg)

@@ -1,0 +1,103 @@
+"""``train(config) -> metrics``: train a likelihood network on synth data (no CLI here).
+
+The exact command that reproduces a shipped model is ``needlenet train MODALITY`` with the
+defaults of :data:`DEFAULTS` (see README).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import warnings
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .data import DataConfig, SynthDataModule
+from .module import LikelihoodModule
+from .networks import build_network, count_parameters
+
+__all__ = ["TrainConfig", "DEFAULTS", "train"]
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    modality: str = "inplane"
+    steps: int = 1500
+    lr: float = 3e-3
+    width: int | None = None
+    out_dir: str = "runs/inplane"
+    val_every: int = 250
+    threads: int = 2
+    data: DataConfig = field(default_factory=DataConfig)
+
+
+# The shipped models: spacing and crop per modality (commands in README).
+DEFAULTS = {
+    "inplane": TrainConfig(modality="inplane", steps=1500, out_dir="runs/inplane",
+                           data=DataConfig(modality="inplane", spacing_mm=0.2, crop=96,
+                                           batch_size=16, frames_per_world=16)),
+    "axial": TrainConfig(modality="axial", steps=1200, out_dir="runs/axial",
+                         data=DataConfig(modality="axial", spacing_mm=0.3, crop=64,
+                                         batch_size=16, frames_per_world=24)),
+    "volume": TrainConfig(modality="volume", steps=600, lr=4e-3, out_dir="runs/volume",
+                          data=DataConfig(modality="volume", spacing_mm=0.6, crop=32,
+                                          batch_size=4, frames_per_world=6, val_frames=24)),
+}
+
+
+def config_for(modality: str, **changes) -> TrainConfig:
+    if modality not in DEFAULTS:
+        raise ValueError(f"unknown model {modality!r}; choose one of {', '.join(DEFAULTS)}")
+    data_changes = {k: changes.pop(k) for k in list(changes) if k in DataConfig.__annotations__}
+    cfg = DEFAULTS[modality]
+    if data_changes:
+        cfg = replace(cfg, data=replace(cfg.data, **data_changes))
+    return replace(cfg, **changes)
+
+
+def train(config: TrainConfig) -> dict:
+    """Train, checkpoint and return the final validation metrics (and the loss history)."""
+    import lightning as L
+    from lightning.pytorch.callbacks import ModelCheckpoint
+
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.data.seed)
+    out = Path(config.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    net = build_network(config.modality, config.width)
+    module = LikelihoodModule(net, config.modality, config.data.spacing_mm, lr=config.lr,
+                              max_steps=config.steps)
+    dm = SynthDataModule(config.data)
+    ckpt = ModelCheckpoint(dirpath=out, filename="last", save_last=False, every_n_train_steps=
+                           max(config.val_every, 1), save_top_k=1)
+    history: list[float] = []
+
+    class _Loss(L.Callback):
+        def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
+            history.append(float(outputs["loss"]) if isinstance(outputs, dict) else
+                           float(outputs))
+
+    trainer = L.Trainer(max_steps=config.steps, accelerator="cpu", devices=1,
+                        val_check_interval=config.val_every, check_val_every_n_epoch=None,
+                        limit_val_batches=1.0, logger=False, callbacks=[ckpt, _Loss()],
+                        enable_progress_bar=False, enable_model_summary=False,
+                        num_sanity_val_steps=0, log_every_n_steps=50)
+    t0 = time.time()
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", ".*does not have many workers.*")
+        warnings.filterwarnings("ignore", ".*IterableDataset.*")
+        trainer.fit(module, datamodule=dm)
+        metrics = {k: float(v) for k, v in trainer.validate(module, datamodule=dm,
+                                                            verbose=False)[0].items()}
+    final = out / "model.ckpt"
+    trainer.save_checkpoint(final)
+    metrics.update({"train_seconds": time.time() - t0, "steps": config.steps,
+                    "parameters": count_parameters(net), "checkpoint": str(final),
+                    "loss_first": float(np.mean(history[:20])) if history else float("nan"),
+                    "loss_last": float(np.mean(history[-20:])) if history else float("nan")})
+    (out / "config.json").write_text(json.dumps(asdict(config), indent=1))
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    return metrics
