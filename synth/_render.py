@@ -306,9 +306,8 @@ def _calibrate_needle_gain(scanner, traj, target_cr, rng, step) -> float:
     for i in np.linspace(0, len(traj.timestamps_s) - 1, min(8, len(traj.timestamps_s))).astype(int):
         pts, tan, _ = _probe_points(world, traj.insertion_mm[i], traj.probe_pose[i],
                                     traj.tissue_pose[i], step)
-        inp = pts if grid.ndim == 3 else _in_plane_samples(pts, r)
-        if grid.ndim == 3:
-            inp = inp[grid.contains(inp)]
+        inp = pts if grid.ndim == 3 else _in_plane_samples(pts, r)[:, [0, 2]]
+        inp = inp[grid.contains(inp)] if len(inp) else inp
         if len(inp) > best_n:
             best, best_n = i, len(inp)
     if best is None:
@@ -327,6 +326,14 @@ def _calibrate_needle_gain(scanner, traj, target_cr, rng, step) -> float:
         return contrast_ratio(img, grid, inp, r, valid)
 
     lo, hi = 1e-3, 1e3
+    reachable = cr(hi)
+    if not np.isfinite(reachable):
+        return 1.0  # no needle pixels in any frame: there is no contrast to set
+    if reachable < 0.95 * target_cr:
+        raise ValueError(
+            f"cr {target_cr:g} cannot be reached in this image: the needle saturates at CR "
+            f"{reachable:.2f} (8 bits, tissue at gray {scanner.params.tissue_gray:g}); lower "
+            "the tissue gray level or the dynamic range, or ask for a lower cr")
     for _ in range(40):
         mid = np.sqrt(lo * hi)
         if cr(mid) < target_cr:

@@ -58,8 +58,8 @@ class ImagingParams:
     attenuation_db_cm_mhz: float = 0.5
     tgc_compensation: float = 1.0  # fraction of the attenuation that TGC gives back
     noise_db: float = -45.0  # electronic noise RMS re unit-echogenicity speckle RMS
-    dynamic_range_db: float = 60.0
-    tissue_gray: float = 100.0  # mean gray level of unit-echogenicity speckle
+    dynamic_range_db: float = 70.0
+    tissue_gray: float = 70.0  # mean gray level of unit-echogenicity speckle
     speed_of_sound_m_s: float = 1540.0
     scatterers_per_cell: float = 40.0  # per resolution cell (FWHM box), at the smallest cell
     max_density_per_mm3: float = 2000.0
@@ -472,6 +472,8 @@ class Scanner:
             strength = strength * w_e
         else:
             w_e = np.ones(len(pts))
+        # reverberations between the walls: echoes about a radius apart (the lumen of a
+        # hollow needle is ~3/4 of its diameter), the comet tail below real shafts
         spacing = spec.reverb_spacing_mm or r
         k = np.arange(spec.reverb_count + 1)
         rev_pts = (wall[None, :, :] + (k[:, None, None] * spacing) * b[None]).reshape(-1, 3)

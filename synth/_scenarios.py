@@ -105,7 +105,7 @@ class _Base:
     gauge: int = 18
     needle_echo: float = 60.0
     noise_db: float = -45.0
-    dynamic_range_db: float = 60.0
+    dynamic_range_db: float = 70.0
     scatterers_per_cell: float = 40.0
     # any ImagingParams / NeedleSpec field, e.g. {"center_frequency_mhz": 7.5}: training
     # randomises the imaging through these

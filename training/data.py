@@ -46,6 +46,7 @@ class DataConfig:
     num_workers: int = 1
     val_frames: int = 64
     val_seed: int = 10_000_000  # validation worlds: seeds never used in training
+    crops_per_frame: int = 1  # several random crops of one simulated frame (costly volumes)
 
 
 def _u(rng, a, b):
@@ -222,7 +223,8 @@ class SynthStream(IterableDataset):
             except ValueError:
                 continue  # a rare impossible draw (e.g. a needle that cannot fit): skip it
             for i in rng.permutation(seq.n_frames):
-                buf.append(sample_from_sequence(seq, int(i), self.cfg, rng))
+                for _ in range(self.cfg.crops_per_frame):
+                    buf.append(sample_from_sequence(seq, int(i), self.cfg, rng))
             while len(buf) > self.cfg.shuffle_buffer // 2:
                 yield buf.pop(int(rng.integers(len(buf))))
 
@@ -265,9 +267,13 @@ class SynthDataModule:
                     self.val = validation_set(self.cfg)
 
             def train_dataloader(self):
+                kw = {}
+                if self.cfg.num_workers > 0:
+                    # spawn, not fork: the parent already runs OpenMP (torch, numba), and
+                    # forking a process that did is unsafe
+                    kw = {"multiprocessing_context": "spawn", "persistent_workers": True}
                 return DataLoader(SynthStream(self.cfg), batch_size=self.cfg.batch_size,
-                                  num_workers=self.cfg.num_workers,
-                                  persistent_workers=self.cfg.num_workers > 0)
+                                  num_workers=self.cfg.num_workers, **kw)
 
             def val_dataloader(self):
                 return DataLoader(self.val, batch_size=1)

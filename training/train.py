@@ -31,6 +31,7 @@ class TrainConfig:
     out_dir: str = "runs/inplane"
     val_every: int = 250
     threads: int = 2
+    verbose: bool = True
     data: DataConfig = field(default_factory=DataConfig)
 
 
@@ -42,9 +43,10 @@ DEFAULTS = {
     "axial": TrainConfig(modality="axial", steps=1200, out_dir="runs/axial",
                          data=DataConfig(modality="axial", spacing_mm=0.3, crop=64,
                                          batch_size=16, frames_per_world=24)),
-    "volume": TrainConfig(modality="volume", steps=600, lr=4e-3, out_dir="runs/volume",
+    "volume": TrainConfig(modality="volume", steps=800, lr=4e-3, out_dir="runs/volume",
                           data=DataConfig(modality="volume", spacing_mm=0.6, crop=32,
-                                          batch_size=4, frames_per_world=6, val_frames=24)),
+                                          batch_size=4, frames_per_world=8, val_frames=24,
+                                          crops_per_frame=3)),
 }
 
 
@@ -74,18 +76,27 @@ def train(config: TrainConfig) -> dict:
     ckpt = ModelCheckpoint(dirpath=out, filename="last", save_last=False, every_n_train_steps=
                            max(config.val_every, 1), save_top_k=1)
     history: list[float] = []
+    t0 = time.time()
 
     class _Loss(L.Callback):
         def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx):
             history.append(float(outputs["loss"]) if isinstance(outputs, dict) else
                            float(outputs))
 
+        def on_validation_end(self, trainer, pl_module):
+            if trainer.sanity_checking or not config.verbose:
+                return
+            m = {k: round(float(v), 4) for k, v in trainer.callback_metrics.items()
+                 if k.startswith("val/")}
+            loss = np.mean(history[-50:]) if history else float("nan")
+            print(f"step {trainer.global_step:5d}  train/loss {loss:.4f}  {m}  "
+                  f"{time.time() - t0:.0f} s", flush=True)
+
     trainer = L.Trainer(max_steps=config.steps, accelerator="cpu", devices=1,
                         val_check_interval=config.val_every, check_val_every_n_epoch=None,
                         limit_val_batches=1.0, logger=False, callbacks=[ckpt, _Loss()],
                         enable_progress_bar=False, enable_model_summary=False,
                         num_sanity_val_steps=0, log_every_n_steps=50)
-    t0 = time.time()
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", ".*does not have many workers.*")
         warnings.filterwarnings("ignore", ".*IterableDataset.*")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ._machine import machine_description
 
-SUITES = ("synth",)
+SUITES = ("synth", "models")
 
 
 def run_suite(name: str, quick: bool = False, json_out: str | Path | None = None,
@@ -17,6 +17,8 @@ def run_suite(name: str, quick: bool = False, json_out: str | Path | None = None
     machine = machine_description()
     if name == "synth":
         from . import _synth as mod
+    elif name == "models":
+        from . import _models as mod
     result = mod.run(quick=quick, seed=seed, log=log)
     result.update({"suite": name, "quick": quick, "machine": machine})
     result["markdown"] = mod.markdown(result, machine)

@@ -2,5 +2,8 @@
 (Carriere 2016), all behind one interface and each taking a FeatureSource."""
 
 from ._base import NeedleEstimate, Status, Tracker, frames_from_sequence
+from ._inplane import InplaneParams, InplaneTracker
+from ._registry import TRACKERS, make_tracker, tracker_class
 
-__all__ = ["NeedleEstimate", "Status", "Tracker", "frames_from_sequence"]
+__all__ = ["InplaneParams", "InplaneTracker", "NeedleEstimate", "Status", "TRACKERS",
+           "Tracker", "frames_from_sequence", "make_tracker", "tracker_class"]

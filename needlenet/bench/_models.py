@@ -1,0 +1,158 @@
+"""``needlenet bench models``: the shipped learned models on held-out synth data, and their
+onnxruntime latency.
+
+Held-out data: the papers' protocol scenarios (``inplane``, ``axial``, ``volume``) with seeds
+never used in training (training draws seeds below 10,000,000; these start at 20,000,000),
+inhomogeneous backgrounds and a contrast ratio of 2.0 (Zhao eq. 9). The imaging is the
+scenario's own, which the training stream only saw as one draw among many.
+
+Metrics per frame, on the frame's grid, through the runtime path the trackers use:
+- shaft AUC: positives within one needle radius of the labelled centreline, negatives farther
+  than three radii (pixels in between are ambiguous and left out);
+- tip: the maximum of the tip map against the labelled tip, on frames where the tip is visible.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+import synth
+
+from ..features import Frame
+from ..features._learned import LearnedFeatures, shipped_model_path
+
+HELD_OUT_SEED = 20_000_000
+CASES = {
+    "inplane": ("inplane", {"spacing_mm": 0.2, "width_mm": 38.4, "depth_mm": 50.0}),
+    "axial": ("axial", {"insertion_mm": 40.0}),
+    "volume": ("volume", {"output_size": 96}),
+}
+LATENCY_SIZES = {
+    "inplane": [(256, 256)],
+    "axial": [(128, 128)],
+    "volume": [(32, 32, 64), (128, 128, 128)],
+}
+
+
+def _auc(p: np.ndarray, pos: np.ndarray, neg: np.ndarray) -> float:
+    from scipy.stats import rankdata
+
+    P, N = p[pos], p[neg]
+    if len(P) == 0 or len(N) == 0:
+        return float("nan")
+    r = rankdata(np.concatenate([P, N]))
+    return float((r[: len(P)].sum() - len(P) * (len(P) + 1) / 2) / (len(P) * len(N)))
+
+
+def _distances(seq, i, grid):
+    axes = np.meshgrid(*[grid.axis_coords(a) for a in range(grid.ndim)], indexing="ij")
+    if grid.ndim == 2:
+        pts = np.stack([axes[1].ravel(), np.zeros(axes[0].size), axes[0].ravel()], -1)
+    else:
+        pts = np.stack([axes[2].ravel(), axes[1].ravel(), axes[0].ravel()], -1)
+    cl = np.asarray(seq.centerline_mm[i], float)
+    a, b = cl[:-1], cl[1:]
+    ab = b - a
+    d = np.full(len(pts), np.inf)
+    for s in range(0, len(pts), 8192):
+        p = pts[s:s + 8192]
+        ap = p[:, None, :] - a[None]
+        t = np.clip(np.einsum("nkd,kd->nk", ap, ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
+        d[s:s + 8192] = np.linalg.norm(ap - t[..., None] * ab[None], axis=-1).min(axis=1)
+    return d.reshape(grid.shape)
+
+
+def evaluate_model(modality: str, source: LearnedFeatures, n_sequences: int, frames: int,
+                   cr: float = 2.0, log=print) -> dict:
+    scenario, kw = CASES[modality]
+    aucs, tips, lat = [], [], []
+    for k in range(n_sequences):
+        seq = synth.generate(scenario, seed=HELD_OUT_SEED + k, frames=frames, cr=cr,
+                             background="inhomogeneous", **kw)
+        g = seq.grid()
+        r = float(seq.meta["needle"]["radius_mm"])
+        for i in range(seq.n_frames):
+            t0 = time.perf_counter()
+            lk = source.likelihood(Frame(seq.images[i], g))
+            lat.append((time.perf_counter() - t0) * 1e3)
+            d = _distances(seq, i, g)
+            valid = np.ones(g.shape, bool)
+            if seq.ndim == 3:
+                valid = seq.images[i] > 0  # inside the sector
+            aucs.append(_auc(lk.shaft.ravel(), (d <= r).ravel() & valid.ravel(),
+                             (d > 3 * r).ravel() & valid.ravel()))
+            tip_visible = bool(seq.visible[i]) and (
+                seq.ndim == 3 or modality == "axial"
+                or abs(seq.tip_3d_mm[i][1]) <= r)
+            if modality == "axial":
+                # in a transverse slice the tip channel marks the needle's tip only when the
+                # slice is at it; the tracked point is the cross-section (shaft channel)
+                tip_visible = False
+            if tip_visible and lk.tip is not None:
+                peak = np.array(np.unravel_index(int(np.argmax(lk.tip)), g.shape), float)
+                tips.append(float(np.linalg.norm(g.index_to_points(peak) - seq.tip_mm[i])))
+        log(f"  {modality} held-out sequence {k}: AUC so far {np.nanmean(aucs):.4f}")
+    tips_a = np.asarray(tips)
+    return {
+        "model": modality, "sequences": n_sequences, "frames": len(aucs), "cr": cr,
+        "seeds": [HELD_OUT_SEED, HELD_OUT_SEED + n_sequences - 1],
+        "shaft_auc_mean": float(np.nanmean(aucs)), "shaft_auc_min": float(np.nanmin(aucs)),
+        "tip_frames": int(tips_a.size),
+        "tip_within_1mm": float((tips_a <= 1.0).mean()) if tips_a.size else float("nan"),
+        "tip_error_median_mm": float(np.median(tips_a)) if tips_a.size else float("nan"),
+        "feature_source_median_ms": float(np.median(lat)),
+    }
+
+
+def onnx_latency(source: LearnedFeatures, shape, threads: int, repeats: int = 30) -> dict:
+    x = np.random.default_rng(0).normal(size=(1, 1, *shape)).astype(np.float32)
+    sess = source.session
+    for _ in range(3):
+        sess.run(None, {"image": x})
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        sess.run(None, {"image": x})
+        times.append((time.perf_counter() - t0) * 1e3)
+    return {"shape": list(shape), "threads": threads, "median_ms": float(np.median(times)),
+            "p99_ms": float(np.percentile(times, 99))}
+
+
+def run(quick: bool, seed: int = 0, log=print) -> dict:
+    rows, lat_rows = [], []
+    for modality in ("inplane", "axial", "volume"):
+        try:
+            path = shipped_model_path(modality)
+        except ValueError as exc:
+            log(f"{modality}: {exc}")
+            continue
+        src = LearnedFeatures(path, modality, threads=2)
+        n, frames = (2, 8) if quick else (6, 20)
+        if modality == "volume":
+            n, frames = (1, 4) if quick else (4, 10)
+        rows.append(evaluate_model(modality, src, n, frames, log=log))
+        for shape in LATENCY_SIZES[modality]:
+            r = onnx_latency(src, shape, 2)
+            r["model"] = modality
+            lat_rows.append(r)
+            log(f"  {modality} onnxruntime {shape}: {r['median_ms']:.2f} ms (p99 "
+                f"{r['p99_ms']:.2f})")
+    return {"rows": rows, "latency": lat_rows}
+
+
+def markdown(result: dict, machine: dict) -> str:
+    lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
+             "| model | held-out frames (CR 2.0) | shaft AUC | tip within 1 mm | "
+             "median tip error (mm) |", "|---|---|---|---|---|"]
+    for r in result["rows"]:
+        lines.append(f"| {r['model']} | {r['frames']} | {r['shaft_auc_mean']:.4f} | "
+                     f"{r['tip_within_1mm']:.3f} ({r['tip_frames']} frames) | "
+                     f"{r['tip_error_median_mm']:.2f} |")
+    lines += ["", "| model | input | onnxruntime median ms (2 threads) | p99 ms |",
+              "|---|---|---|---|"]
+    for r in result["latency"]:
+        lines.append(f"| {r['model']} | {'x'.join(map(str, r['shape']))} | "
+                     f"{r['median_ms']:.2f} | {r['p99_ms']:.2f} |")
+    return "\n".join(lines)

@@ -1,0 +1,498 @@
+"""In-plane needle tracking of Mathiassen et al. 2017 (IEEE TCST 25(3)): the eleven methods of
+Table III behind the :class:`Tracker` interface.
+
+| method  | Table III | axis (section II-A)                | tip (section II-B..D)                 |
+|---------|-----------|------------------------------------|---------------------------------------|
+| df      | 1 DF      | Hough on a segmentation (III-C)    | first gap along the axis              |
+| om      | 2 OM      | Algorithm 2, fixed ROI             | argmax h(x)                           |
+| om+f    | 3 OM+F    | Algorithm 2, ROI from the last tip | argmax h(x)                           |
+| kf      | 4 KF      | Algorithm 2 + KF on theta          | KF with Bayesian candidates (Alg. 4)  |
+| kf+f    | 5 KF+F    | feedback ROI + KF on theta         | as kf                                 |
+| pf      | 6 PF      | Algorithm 2 + KF on theta          | particle filter on h_pdf (Alg. 5)     |
+| pf+f    | 7 PF+F    | feedback ROI + KF on theta         | as pf                                 |
+| kfv(+f) | 8, 9      | as kf(+f)                          | KF with the robot's velocity (eq. 19) |
+| pfv(+f) | 10, 11    | as pf(+f)                          | PF with the robot's velocity (eq. 23) |
+
+States. ``searching``: every frame runs the detection search (Algorithm 2 without feedback,
+over +-5 degrees around the expected insertion angle or, when none is given, over 20-70
+degrees) and the needle is taken as found when the shaft contrast along the axis (the mean of
+the line echo minus the mean of a tissue band 2-3 mm above it, over the background's spread;
+about 0 on tissue and 3-5 on a needle) reaches ``detect_contrast`` over at least
+``min_length_mm``. Because the fixed ROI's 12 rays span the whole image and a needle that has
+just entered meets only two or three of them, the detection searches once more with the
+feedback ROI up to the tip it found and keeps the better axis; the filters start there (the
+paper starts its method by hand once 10 mm of needle is visible). ``tracking``: each frame
+measures as its method says; a frame whose contrast is below ``keep_contrast`` is not used as a
+measurement (the filters only predict), and after ``lost_after_frames`` such frames in a row the
+tracker reports ``lost``, forgets its filters and searches again.
+
+The KF on theta (methods 4-11) filters the searched angle; the line at the filtered angle goes
+through the centroid of the needle points p_k that lie on the needle (rays up to the last tip
+estimate), and the tip features are read along it (Fig. 2: "Axis Est" -> "KF" -> "Tip Est").
+
+Units. The back ends work in the paper's 0.10 mm pixels along the needle axis and seconds, so
+that the parameters of section III-B and Table II keep their meaning at any image spacing.
+Table II is read in frame units (Delta T = 1 frame): read in seconds, its initial velocity
+spread (5 px/s) and velocity noise (0.1 px/s per step) cannot follow an insertion at 50-150 px/s
+and the filter lags by several millimetres, while the paper reports a lag of about 1 mm. The
+tip filter's candidate selection uses the ``"marginal"`` evidence: eq. (15) as printed depends
+on where the axis coordinate starts (here the ROI corner), and lets P(j | x_bar) exceed 1 and
+R_k fall below R_MIN; the marginal sum_i P(x_bar | j_i) P(j_i) is the exact Bayes normaliser,
+so R_k >= R_MIN as the text intends.
+
+Output. ``tip_mm`` (x, z) on the needle's centre line (the line echo plus the calibrated
+``axis_offset_mm`` along v_p for classical features; a learned shaft map is centred already),
+``direction`` v_n, ``covariance`` sigma_n^2 v_n v_n^T + sigma_p^2 v_p v_p^T in mm^2 with
+sigma_n^2 the tip filter's position variance (R_MIN for OM and DF) and sigma_p^2 the spread of
+the needle points across the rays plus the angle's variance times the needle length squared.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..backends._kalman import (
+    MathiassenAngleFilter,
+    MathiassenAngleParams,
+    MathiassenTipFilter,
+    MathiassenTipParams,
+    tip_candidates,
+)
+from ..backends._particle import MathiassenPFParams, MathiassenTipParticleFilter
+from ..features._base import FeatureSource, Frame
+from ..features._hough import DFParams, ding_fenster
+from ..features._mathiassen import (
+    PAPER_PX_MM,
+    AxisEstimate,
+    MathiassenParams,
+    TipWeights,
+    axis_vectors,
+    estimate_axis,
+    load_tip_weights,
+    roi_anchor_mm,
+    tip_features,
+    tip_likelihood,
+    tip_map_along_axis,
+)
+from ._base import NeedleEstimate, Status, Tracker
+
+__all__ = ["InplaneParams", "InplaneTracker"]
+
+METHODS = ("df", "om", "om+f", "kf", "kf+f", "pf", "pf+f", "kfv", "kfv+f", "pfv", "pfv+f")
+
+
+@dataclass(frozen=True)
+class InplaneParams:
+    """Tracker settings; the paper's parameters live in ``axis`` (section III-B), ``angle``
+    (the KF on theta) and ``df`` (section III-C); the tip filters take Table II and section
+    III-B's PF values (see :meth:`InplaneTracker._make_tip_filter`).
+
+    ``detect_contrast``/``keep_contrast``: shaft contrast to (re)detect and to keep measuring;
+    ``lost_after_frames``: frames below ``keep_contrast`` before ``lost``; ``min_length_mm``:
+    needle visible from the first ray to the tip needed to detect; ``frame_rate_hz``: None
+    takes the rate from the frames' timestamps (20 Hz, the paper's frame grabber, until two
+    frames have been seen). ``two_point_start``: without a robot velocity the tip filter
+    starts on the frame after the detection, at that frame's maximum of h with the velocity
+    of the two measurements (two-point initialisation; a speed above ``max_start_speed_mm_s``
+    is taken for an outlier and replaced by 0); otherwise it starts at the detection with
+    velocity 0, and with Table II's P_0 and Q the KF then lags for a second or two. All ours;
+    the paper starts its method by hand once 10 mm of needle is visible and does not say
+    how the velocity starts.
+    """
+
+    axis: MathiassenParams = field(default_factory=MathiassenParams)
+    angle: MathiassenAngleParams = field(default_factory=MathiassenAngleParams)
+    df: DFParams = field(default_factory=DFParams)
+    detect_contrast: float = 1.5
+    keep_contrast: float = 1.0
+    lost_after_frames: int = 3
+    min_length_mm: float = 3.0
+    frame_rate_hz: float | None = None
+    evidence: str = "marginal"
+    pf_particles: int = 200
+    two_point_start: bool = True
+    max_start_speed_mm_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        if self.keep_contrast > self.detect_contrast:
+            raise ValueError("keep_contrast must not exceed detect_contrast")
+        if self.lost_after_frames < 1:
+            raise ValueError("lost_after_frames must be >= 1")
+        if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
+            raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
+
+
+def _mm_to_px(mm):
+    return np.asarray(mm, dtype=float) / PAPER_PX_MM
+
+
+class InplaneTracker(Tracker):
+    """Mathiassen 2017's in-plane trackers (Table III).
+
+    Parameters
+    ----------
+    method : one of ``df om om+f kf kf+f pf pf+f kfv kfv+f pfv pfv+f``
+    features : FeatureSource, default :class:`IntensityFeatures`
+        Its ``shaft`` map is searched for the axis; a ``tip`` map, when the source has one,
+        replaces the five tip features as h(x).
+    expected_angle_deg : float or None
+        Insertion angle to the skin the searches centre on (+-5 degrees, section III-C). None:
+        the detection searches 20-70 degrees and the tracker then centres on what it found.
+    params : InplaneParams
+    rng, seed : Generator, int or None
+        Random source of the particle filters (``seed`` is an alias of ``rng``).
+    weights : TipWeights, path or None
+        The weights of h(x); None loads ``needlenet/data/mathiassen_weights.json`` (loaded at
+        construction for classical sources, raising FileNotFoundError with the command that
+        makes it when missing; a learned source with a tip map does not need it).
+    """
+
+    modality = "inplane"
+    methods = METHODS
+
+    def __init__(self, method: str = "kf+f", features: FeatureSource | None = None, *,
+                 expected_angle_deg: float | None = None, params: InplaneParams | None = None,
+                 rng: np.random.Generator | int | None = None, seed: int | None = None,
+                 weights: TipWeights | str | None = None):
+        self.params = InplaneParams() if params is None else params
+        if expected_angle_deg is not None:
+            lo, hi = self.params.axis.full_range_deg
+            if not lo <= float(expected_angle_deg) <= hi:
+                raise ValueError(f"expected_angle_deg must lie in [{lo}, {hi}], "
+                                 f"got {expected_angle_deg}")
+        self.expected_angle_deg = None if expected_angle_deg is None else float(
+            expected_angle_deg)
+        self._rng = np.random.default_rng(seed if rng is None else rng)
+        self._weights_arg = weights
+        self._weights: TipWeights | None = None
+        super().__init__(method, features)
+        if self.features.kind == "classical":
+            self.tip_weights()  # fail here, not on the first frame, when the file is missing
+        self.feedback = method.endswith("+f")
+        self.filter_kind = method[:2] if method[:2] in ("kf", "pf") else None
+        self.use_velocity = method.startswith(("kfv", "pfv"))
+        self._history: deque = deque(maxlen=self.params.axis.delta_frames)
+        self._last_t: float | None = None
+        self._dt: float | None = None
+
+    # ------------------------------------------------------------------ state
+
+    def reset(self) -> None:
+        """Forget the needle (filters, feedback tip, angle); the next frame searches."""
+        super().reset()
+        self._clear_track()
+        if hasattr(self, "_history"):
+            self._history.clear()
+
+    def _clear_track(self) -> None:
+        self._tip_filter = None
+        self._angle_filter: MathiassenAngleFilter | None = None
+        self._tip_along_mm: float | None = None
+        self._theta_ref: float | None = None
+        self._misses = 0
+        self._df_last: NeedleEstimate | None = None
+        self._first_fix: tuple[float, float] | None = None
+
+    def tip_weights(self) -> TipWeights:
+        """The weights of h(x), loaded on first use."""
+        if self._weights is None:
+            w = self._weights_arg
+            self._weights = w if isinstance(w, TipWeights) else load_tip_weights(w)
+        return self._weights
+
+    # ------------------------------------------------------------------ one frame
+
+    def _step(self, frame: Frame) -> NeedleEstimate:
+        if frame.grid.ndim != 2:
+            raise ValueError(f"InplaneTracker needs 2-D images, got a {frame.grid.ndim}-D grid")
+        self._update_dt(frame.t)
+        lik = self.features.likelihood(frame)
+        image = np.asarray(lik.shaft, dtype=np.float32)
+        previous = self._history[0] if self._history else None  # I_{k-delta}, eq. (8)
+        if previous is not None and previous.shape != image.shape:
+            self._history.clear()
+            previous = None
+        try:
+            if self.status == Status.TRACKING:
+                est = self._track(frame, image, previous, lik.tip)
+            else:
+                est = self._detect(frame, image, previous, lik.tip)
+        finally:
+            if lik.tip is None:
+                self._history.append(image.copy())
+        return est
+
+    def _update_dt(self, t: float) -> None:
+        if self.params.frame_rate_hz is not None:
+            self._dt = 1.0 / self.params.frame_rate_hz
+        elif self._last_t is not None and t > self._last_t and self._dt is None:
+            self._dt = float(t - self._last_t)
+        self._last_t = float(t)
+
+    @property
+    def dt_s(self) -> float:
+        return self._dt if self._dt is not None else 1.0 / 20.0
+
+    def _search_range(self) -> dict:
+        if self._theta_ref is not None:
+            centre = self._theta_ref
+            if self._angle_filter is not None:
+                centre = self._angle_filter.theta_deg
+            return {"theta_centre_deg": centre}
+        if self.expected_angle_deg is not None:
+            return {"theta_centre_deg": self.expected_angle_deg}
+        return {"theta_range_deg": self.params.axis.full_range_deg}
+
+    def _measure(self, image, previous, tip_map, grid, axis: AxisEstimate):
+        """Tip features and h(x) along the axis (Algorithm 3)."""
+        if tip_map is not None:
+            return tip_map_along_axis(image, np.asarray(tip_map, np.float32), grid, axis,
+                                      self.params.axis)
+        feats = tip_features(image, previous, grid, axis, self.params.axis)
+        return feats, tip_likelihood(feats, self.tip_weights().weights)
+
+    def _offset_mm(self, tip_map) -> float:
+        """Line echo to centre line along v_p (classical features only)."""
+        return 0.0 if tip_map is not None else self.tip_weights().axis_offset_mm
+
+    def _tip_positions_mm(self, feats, tip_map) -> np.ndarray:
+        """Where each sample of h(x) puts the tip: x plus the fitted ``tip_offset_mm``."""
+        shift = 0.0 if tip_map is not None else self.tip_weights().tip_offset_mm
+        return feats.x_mm + shift
+
+    # detection --------------------------------------------------------------------------
+
+    def _detect(self, frame, image, previous, tip_map) -> NeedleEstimate:
+        p = self.params
+        grid = frame.grid
+        if self.method == "df":
+            return self._df(frame, image, previous, tip_map, detecting=True)
+        axis = estimate_axis(image, grid, p.axis, **self._search_range())
+        feats, h = self._measure(image, previous, tip_map, grid, axis)
+        x_tip = float(self._tip_positions_mm(feats, tip_map)[int(np.argmax(h))])
+        first = float(axis.rays_mm[0])
+        contrast = feats.shaft_contrast(first, x_tip)
+        if x_tip - first >= p.min_length_mm:
+            # the fixed ROI spans the image while a short needle meets only a few of its rays:
+            # search again with rays from the corner to the tip just found (the "+F" ROI)
+            fine = estimate_axis(image, grid, p.axis, theta_centre_deg=axis.theta_deg,
+                                 tip_along_mm=x_tip)
+            feats_f, h_f = self._measure(image, previous, tip_map, grid, fine)
+            x_tip_f = float(self._tip_positions_mm(feats_f, tip_map)[int(np.argmax(h_f))])
+            contrast_f = feats_f.shaft_contrast(first, x_tip_f)
+            if contrast_f >= contrast:
+                axis, feats, h, x_tip, contrast = fine, feats_f, h_f, x_tip_f, contrast_f
+        extras = {"shaft_contrast": contrast, "theta_measured_deg": axis.theta_deg}
+        if contrast < p.detect_contrast or x_tip - first < p.min_length_mm:
+            return NeedleEstimate(t=frame.t, status=self.status,
+                                  extras={**extras, "reason": "no needle found"})
+        self._start_track(axis, x_tip, frame)
+        return self._estimate(frame, axis, x_tip, None, h, feats, contrast, tip_map,
+                              {"detected": True, "theta_measured_deg": axis.theta_deg})
+
+    def _start_track(self, axis: AxisEstimate, x_tip_mm: float, frame: Frame) -> None:
+        self._clear_track()
+        self._theta_ref = axis.theta_deg if self.expected_angle_deg is None else \
+            self.expected_angle_deg
+        if self.filter_kind is not None:
+            self._angle_filter = MathiassenAngleFilter(self.params.angle, axis.theta_deg)
+            velocity = self._velocity_px_s(frame)
+            if velocity is None and self.params.two_point_start:
+                self._first_fix = (x_tip_mm, float(frame.t))  # the filter starts next frame
+            else:
+                self._tip_filter = self._make_tip_filter(float(_mm_to_px(x_tip_mm)), velocity)
+        self._tip_along_mm = x_tip_mm
+
+    def _velocity_px_s(self, frame: Frame) -> float | None:
+        """The robot's insertion speed along the axis in px/s (KF_v, PF_v), else None."""
+        if not self.use_velocity or frame.insertion_speed_mm_s is None:
+            return None
+        return float(_mm_to_px(frame.insertion_speed_mm_s))
+
+    def _make_tip_filter(self, x0_px: float, v_px_s: float | None):
+        """Table II's KF (frame units, see the module doc) or section III-B's PF."""
+        dt = self.dt_s
+        v0 = 0.0 if v_px_s is None else v_px_s
+        if self.filter_kind == "kf":
+            fps = 1.0 / dt
+            params = MathiassenTipParams(
+                dt_s=dt,
+                p0_velocity_px2_s2=(5.0 * fps) ** 2,  # 5 px/frame
+                q_std_px=0.1 * fps,  # Q = diag(1/2 0.1^2 px^2, (0.1 px/frame)^2)
+                r_velocity_px2_s2=(1.0 * fps) ** 2,  # R_v = (1 px/frame)^2
+                evidence=self.params.evidence)
+            return MathiassenTipFilter(x0_px, v0, params)
+        maker = MathiassenPFParams.pf_v if self.use_velocity else MathiassenPFParams.pf
+        params = maker(dt_s=dt, n_particles=self.params.pf_particles)
+        return MathiassenTipParticleFilter(x0_px, v0, params, rng=self._rng)
+
+    # tracking ---------------------------------------------------------------------------
+
+    def _track(self, frame, image, previous, tip_map) -> NeedleEstimate:
+        p = self.params
+        grid = frame.grid
+        if self.method == "df":
+            return self._df(frame, image, previous, tip_map, detecting=False)
+        tip_along = self._tip_along_mm if self.feedback else None
+        axis = estimate_axis(image, grid, p.axis, tip_along_mm=tip_along,
+                             **self._search_range())
+        theta_measured = axis.theta_deg
+        if self._angle_filter is not None:
+            theta_kf = self._angle_filter.step(axis.theta_deg)  # Algorithm 4, line 16
+            axis = axis.rotated(theta_kf, upto_mm=self._tip_along_mm)
+        feats, h = self._measure(image, previous, tip_map, grid, axis)
+        first = float(axis.rays_mm[0])
+        contrast = feats.shaft_contrast(first, max(self._tip_along_mm, first + p.min_length_mm))
+        seen = contrast >= p.keep_contrast
+        self._misses = 0 if seen else self._misses + 1
+        if self._misses >= p.lost_after_frames:
+            self._clear_track()
+            return NeedleEstimate(t=frame.t, status=Status.LOST, extras={
+                "reason": f"shaft contrast below {p.keep_contrast} for "
+                          f"{p.lost_after_frames} frames", "shaft_contrast": contrast})
+        extras = {"theta_measured_deg": theta_measured}
+        x_tip, var_px2 = self._tip_step(self._tip_positions_mm(feats, tip_map), h, seen, frame,
+                                        extras)
+        self._tip_along_mm = x_tip
+        return self._estimate(frame, axis, x_tip, var_px2, h, feats, contrast, tip_map, extras)
+
+    def _tip_step(self, x_mm: np.ndarray, h: np.ndarray, seen: bool, frame: Frame,
+                  extras: dict):
+        """Tip along the axis (mm) and its variance (px^2, None for OM) for this frame, from
+        h(x) at tip positions ``x_mm``."""
+        x_px = _mm_to_px(x_mm)
+        velocity = self._velocity_px_s(frame)
+        if self.use_velocity and velocity is None:
+            extras["velocity"] = "the frame carries no insertion speed; image only"
+        if self.filter_kind is None or self._tip_filter is None:  # OM: the maximum of h(x)
+            x_tip = float(x_mm[int(np.argmax(h))]) if seen else self._tip_along_mm
+            if self.filter_kind is not None and seen:
+                self._two_point_start(x_tip, float(frame.t))
+            return x_tip, None
+        if self.filter_kind == "kf":
+            if seen:
+                M = max(1, int(round(self.params.axis.candidate_radius_mm /
+                                     float(x_mm[1] - x_mm[0]))))
+                idx = tip_candidates(h, M)  # eq. (12)
+                scores = h[idx] - h.min()  # P(j_i) of eq. (16) needs h >= 0
+                if not scores.sum() > 0:
+                    idx, scores = idx[:0], scores[:0]
+            else:
+                idx, scores = np.zeros(0, int), np.zeros(0)
+            est = self._tip_filter.step(x_px[idx], scores, velocity)  # Algorithm 4
+            extras.update(candidates=int(idx.size), measurement_accepted=bool(est.accepted),
+                          tip_velocity_mm_s=est.velocity_px_s * PAPER_PX_MM)
+            if est.accepted:
+                extras["tip_measurement_mm"] = float(est.measurement_px * PAPER_PX_MM)
+            return est.position_px * PAPER_PX_MM, float(est.P[0, 0])
+        h_used = h if seen else np.zeros_like(h)  # a frame without the needle: flat h_pdf
+        est = self._tip_filter.step(h_used, x_px, velocity, rng=self._rng)  # Algorithm 5
+        extras.update(measurement_accepted=bool(est.updated),
+                      tip_velocity_mm_s=est.velocity_px_s * PAPER_PX_MM)
+        return est.position_px * PAPER_PX_MM, float(est.covariance[0, 0])
+
+    def _two_point_start(self, x_tip_mm: float, t: float) -> None:
+        """Start the tip filter at this measurement with the velocity of the last two."""
+        v = 0.0
+        if self._first_fix is not None:
+            x0, t0 = self._first_fix
+            v = (x_tip_mm - x0) / (t - t0 if t > t0 else self.dt_s)
+            if abs(v) > self.params.max_start_speed_mm_s:  # an outlier, not a needle speed
+                v = 0.0
+        self._tip_filter = self._make_tip_filter(float(_mm_to_px(x_tip_mm)),
+                                                 float(_mm_to_px(v)))
+        self._first_fix = None
+
+    # DF ---------------------------------------------------------------------------------
+
+    def _df(self, frame, image, previous, tip_map, detecting: bool) -> NeedleEstimate:
+        p = self.params
+        grid = frame.grid
+        centre = self.expected_angle_deg if self.expected_angle_deg is not None else \
+            self._theta_ref
+        res = ding_fenster(image, grid, centre, p.df)
+        contrast = 0.0
+        if res:
+            anchor = roi_anchor_mm(grid, p.axis)
+            vn, vp = axis_vectors(res.theta_deg)
+            axis = AxisEstimate(res.theta_deg, float((res.tip_mm - anchor) @ vp), 0.0,
+                                anchor, np.array([p.axis.ray_half_width_mm]), np.zeros(1),
+                                np.zeros(1))
+            x_tip = float((res.tip_mm - anchor) @ vn)
+            feats, h = self._measure(image, previous, tip_map, grid, axis)
+            first = float((res.entry_mm - anchor) @ vn)
+            contrast = feats.shaft_contrast(max(first, axis.rays_mm[0]), x_tip)
+        need = p.detect_contrast if detecting else p.keep_contrast
+        found = bool(res) and contrast >= need
+        self._misses = 0 if found else self._misses + 1
+        if not found:
+            reason = res.reason or f"shaft contrast {contrast:.2f} below {need}"
+            if detecting:
+                return NeedleEstimate(t=frame.t, status=self.status,
+                                      extras={"reason": reason, "shaft_contrast": contrast})
+            if self._misses >= p.lost_after_frames:
+                self._clear_track()
+                return NeedleEstimate(t=frame.t, status=Status.LOST,
+                                      extras={"reason": reason, "shaft_contrast": contrast})
+            if self._tip_along_mm is None or self._df_last is None:
+                return NeedleEstimate(t=frame.t, status=Status.LOST, extras={"reason": reason})
+            return self._df_last_estimate(frame, reason, contrast)
+        if detecting:
+            self._clear_track()
+            self._theta_ref = res.theta_deg
+        self._tip_along_mm = x_tip
+        est = NeedleEstimate(
+            t=frame.t, status=Status.TRACKING, tip_mm=np.asarray(res.tip_mm, float),
+            direction=np.asarray(res.direction, float),
+            covariance=self._covariance(res.theta_deg, float(MathiassenTipParams().r_min_px2),
+                                        1.0 / 12.0 * (grid.spacing_mm[0] ** 2),
+                                        self.params.angle.r_theta_deg2, x_tip - first),
+            extras={"axis_point_mm": np.asarray(res.entry_mm, float),
+                    "theta_deg": res.theta_deg, "hough_votes": res.votes,
+                    "shaft_contrast": contrast})
+        self._df_last = est
+        return est
+
+    def _df_last_estimate(self, frame, reason, contrast) -> NeedleEstimate:
+        last = self._df_last
+        return NeedleEstimate(t=frame.t, status=Status.TRACKING, tip_mm=last.tip_mm,
+                              direction=last.direction, covariance=last.covariance,
+                              extras={**last.extras, "reason": reason, "coasting": True,
+                                      "shaft_contrast": contrast})
+
+    # output -----------------------------------------------------------------------------
+
+    @staticmethod
+    def _covariance(theta_deg: float, var_n_px2: float, var_p_mm2: float,
+                    var_theta_deg2: float, length_mm: float) -> np.ndarray:
+        """sigma_n^2 v_n v_n^T + sigma_p^2 v_p v_p^T in mm^2."""
+        vn, vp = axis_vectors(theta_deg)
+        var_n = var_n_px2 * PAPER_PX_MM**2
+        var_p = var_p_mm2 + np.deg2rad(np.sqrt(var_theta_deg2)) ** 2 * max(length_mm, 0.0) ** 2
+        return var_n * np.outer(vn, vn) + var_p * np.outer(vp, vp)
+
+    def _estimate(self, frame, axis: AxisEstimate, x_tip: float, var_px2: float | None, h,
+                  feats, contrast: float, tip_map, extras: dict) -> NeedleEstimate:
+        offset = self._offset_mm(tip_map)
+        tip = axis.point_mm(x_tip, offset)
+        if var_px2 is None:
+            var_px2 = float(MathiassenTipParams().r_min_px2)  # OM: R_MIN
+        n_rays = max(len(axis.points_mm), 1)
+        var_p = float(np.var(axis.points_mm)) / n_rays + 1.0 / 12.0 * float(
+            min(frame.grid.spacing_mm)) ** 2
+        var_theta = self._angle_filter.variance_deg2 if self._angle_filter is not None else \
+            self.params.angle.r_theta_deg2
+        cov = self._covariance(axis.theta_deg, var_px2, var_p, var_theta,
+                               x_tip - float(axis.rays_mm[0]))
+        at_end = x_tip >= float(feats.x_mm[-1]) - self.params.axis.region_length_mm
+        return NeedleEstimate(
+            t=frame.t, status=Status.TRACKING, tip_mm=tip, direction=axis.direction,
+            covariance=cov,
+            extras={"axis_point_mm": axis.point_mm(0.0, offset), "theta_deg": axis.theta_deg,
+                    "p_p_mm": axis.p_p_mm + offset, "tip_along_mm": x_tip,
+                    "h_peak": float(np.max(h)), "h_max": axis.h_max,
+                    "n_rays": int(len(axis.rays_mm)), "shaft_contrast": contrast,
+                    "tip_at_image_edge": bool(at_end), **extras})
