@@ -2,9 +2,11 @@
 
 from ._base import FeatureSource, Frame, FrameError, IntensityFeatures, Likelihood, check_frame
 from ._learned import LearnedFeatures, ModelError
+from ._variance import VarianceFeatures
 
 __all__ = ["FeatureSource", "Frame", "FrameError", "IntensityFeatures", "Likelihood",
-           "check_frame", "learned_features", "LearnedFeatures", "ModelError"]
+           "check_frame", "learned_features", "LearnedFeatures", "ModelError",
+           "VarianceFeatures"]
 
 
 def learned_features(modality: str, model: str | None = None, threads: int = 2) -> FeatureSource:
