@@ -227,7 +227,8 @@ def _add_train(sub) -> None:
     p.add_argument("--steps", type=int, help="optimisation steps (default: the shipped recipe)")
     p.add_argument("--out", help="output directory (default runs/MODEL)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=1, help="data-generating processes")
+    p.add_argument("--workers", type=int, default=2,
+                   help="data-generating processes (default 2: the trainer itself needs little)")
     p.add_argument("--export", help="also export the result to this .onnx file")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=_cmd_train)

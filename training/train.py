@@ -30,7 +30,7 @@ class TrainConfig:
     width: int | None = None
     out_dir: str = "runs/inplane"
     val_every: int = 250
-    threads: int = 2
+    threads: int = 1  # the trainer's torch threads; the data worker has the other core
     verbose: bool = True
     data: DataConfig = field(default_factory=DataConfig)
 
@@ -39,10 +39,12 @@ class TrainConfig:
 DEFAULTS = {
     "inplane": TrainConfig(modality="inplane", steps=1500, out_dir="runs/inplane",
                            data=DataConfig(modality="inplane", spacing_mm=0.2, crop=96,
-                                           batch_size=16, frames_per_world=16)),
+                                           batch_size=16, frames_per_world=24,
+                                           crops_per_frame=2, shuffle_buffer=192)),
     "axial": TrainConfig(modality="axial", steps=1200, out_dir="runs/axial",
                          data=DataConfig(modality="axial", spacing_mm=0.3, crop=64,
-                                         batch_size=16, frames_per_world=24)),
+                                         batch_size=16, frames_per_world=40,
+                                         crops_per_frame=2, shuffle_buffer=192)),
     "volume": TrainConfig(modality="volume", steps=800, lr=4e-3, out_dir="runs/volume",
                           data=DataConfig(modality="volume", spacing_mm=0.6, crop=32,
                                           batch_size=4, frames_per_world=8, val_frames=24,

@@ -25,7 +25,8 @@ from ..features._learned import LearnedFeatures, shipped_model_path
 
 HELD_OUT_SEED = 20_000_000
 CASES = {
-    "inplane": ("inplane", {"spacing_mm": 0.2, "width_mm": 38.4, "depth_mm": 50.0}),
+    "inplane": ("inplane", {"spacing_mm": 0.2, "width_mm": 38.4, "depth_mm": 50.0,
+                            "imaging_overrides": {"tissue_gray": 50.0}}),  # CR 2 fits 8 bits
     "axial": ("axial", {"insertion_mm": 40.0}),
     "volume": ("volume", {"output_size": 96}),
 }

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ._machine import machine_description
 
-SUITES = ("synth", "models")
+SUITES = ("synth", "models", "inplane", "axial")
 
 
 def run_suite(name: str, quick: bool = False, json_out: str | Path | None = None,
@@ -19,9 +19,18 @@ def run_suite(name: str, quick: bool = False, json_out: str | Path | None = None
         from . import _synth as mod
     elif name == "models":
         from . import _models as mod
-    result = mod.run(quick=quick, seed=seed, log=log)
+    if name in ("inplane", "axial"):
+        from . import _trackers as tr
+
+        result = getattr(tr, f"run_{name}")(quick=quick, log=log)
+        md = getattr(tr, f"markdown_{name}")
+    else:
+        result = mod.run(quick=quick, seed=seed, log=log)
+        md = mod.markdown
     result.update({"suite": name, "quick": quick, "machine": machine})
-    result["markdown"] = mod.markdown(result, machine)
+    for row in result.get("rows", []):
+        row.setdefault("machine", machine["cpu"])
+    result["markdown"] = md(result, machine)
     if json_out is not None:
         Path(json_out).write_text(json.dumps(result, indent=2))
     return result

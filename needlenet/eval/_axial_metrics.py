@@ -84,6 +84,7 @@ class AxialMetrics:
             "tracking_error_median_mm": float(np.median(e)) if e.size else np.nan,
             "tracking_error_max_mm": float(e.max()) if e.size else np.nan,
             "tip_error_mm": self.tip_error_mm,
+            "tip_prediction_error_mm": self.tip_error_mm,  # the axial suite's headline key
             "tip_error_transverse_mm": self.tip_error_transverse_mm,
             "tip_error_absolute_mm": self.tip_error_absolute_mm,
             "shape_error_mm2": self.shape_error_mm2,

@@ -1,0 +1,176 @@
+"""Tracker suites: each paper's protocol on seeded synth data, through the same back ends with
+classical and with learned features, scored by :mod:`needlenet.eval` (the code path of
+``needlenet track``).
+
+- ``inplane`` (Mathiassen 2017): 35/45 degrees x 5/10/15 mm/s, 20 frames/s, 0.1 mm/px, 5 cm,
+  14 G; Table III per method; headline ``tip_error_p95_mm`` (95th percentile of ||e||).
+- ``axial`` (Carriere 2016): slices every 0.5 mm, curved 18 G needle, bevel rotation at
+  D = 60 and 80 mm; tip and shape prediction errors (Table I), ms/frame (Table II); headline
+  ``tip_prediction_error_mm``.
+Held-out seeds start at 30,000,000 (training never uses seeds at or above 10,000,000).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import synth
+
+from ..eval import evaluate
+from ..features._learned import ModelError
+from ..trackers._registry import make_tracker
+
+SEED0 = 30_000_000
+
+# Mathiassen 2017, Table III (mean +- sd [95th or 2.5-97.5 percentiles]) for the columns we
+# report; ||e|| in mm: mean, sd, 95th percentile.
+MATHIASSEN_NORM_E = {
+    "df": (13.75, 10.09, 33.68), "om": (3.55, 6.23, 17.21), "om+f": (3.13, 5.99, 19.33),
+    "kf": (1.81, 1.61, 5.42), "kf+f": (1.68, 1.72, 5.54), "pf": (2.68, 2.92, 8.81),
+    "pf+f": (2.64, 3.03, 8.66), "kfv": (0.94, 0.74, 2.12), "kfv+f": (0.82, 0.76, 2.17),
+    "pfv": (1.69, 2.26, 7.66), "pfv+f": (1.81, 2.32, 7.21),
+}
+MATHIASSEN_ABS_ETHETA = {
+    "df": 3.33, "om": 1.67, "om+f": 1.51, "kf": 1.48, "kf+f": 1.21, "pf": 1.48, "pf+f": 1.23,
+    "kfv": 1.48, "kfv+f": 1.17, "pfv": 1.48, "pfv+f": 1.20,
+}
+# Carriere 2016, Table I: tip prediction error (mm), shape error (mm^2), mean +- sd
+CARRIERE_TABLE_I = {60: (0.497, 0.38, 105.0, 15.1), 80: (0.125, 0.02, 18.4, 5.0)}
+
+
+def _feature_kinds(modality: str, log) -> list[str]:
+    kinds = ["classical"]
+    try:
+        from ..features._learned import shipped_model_path
+
+        shipped_model_path(modality)
+        kinds.append("learned")
+    except ModelError as exc:
+        log(f"  learned features skipped: {exc}")
+    return kinds
+
+
+def _pooled(per_seq: list[dict], key: str) -> np.ndarray:
+    vals = []
+    for r in per_seq:
+        pf = r["per_frame"]
+        use = np.asarray(r["evaluated"], bool)
+        vals.append(np.asarray(pf[key], float)[use])
+    return np.concatenate(vals) if vals else np.zeros(0)
+
+
+def run_inplane(quick: bool, methods=None, log=print) -> dict:
+    combos = [(a, s) for a in (35.0, 45.0) for s in (5.0, 10.0, 15.0)]
+    reps = 1 if quick else 3
+    frames = 30 if quick else None
+    seqs = []
+    k = 0
+    for a, s in combos:
+        for _ in range(reps):
+            seqs.append(synth.generate("inplane", seed=SEED0 + k, frames=frames, angle_deg=a,
+                                       speed_mm_s=s, background="inhomogeneous"))
+            k += 1
+    methods = methods or (["kf+f", "om", "kf", "kfv+f"] if quick else list(MATHIASSEN_NORM_E))
+    rows = []
+    for kind in _feature_kinds("inplane", log):
+        for m in methods:
+            res, lat = [], []
+            for i, seq in enumerate(seqs):
+                tr = make_tracker("inplane", m, kind, seed=i)
+                est = tr.run(seq)
+                res.append(evaluate("inplane", est, seq))
+                lat += [e.latency_ms for e in est]
+            norm = _pooled(res, "norm_e_mm")
+            th = _pooled(res, "abs_e_theta_deg")
+            en, ep = _pooled(res, "e_n_mm"), _pooled(res, "e_p_mm")
+            lat_a = np.asarray(lat)
+            paper = MATHIASSEN_NORM_E.get(m)
+            row = {
+                "suite": "inplane", "tracker": "inplane", "method": m, "features": kind,
+                "sequences": len(seqs), "frames": int(sum(s.n_frames for s in seqs)),
+                "frames_evaluated": int(norm.size),
+                "seeds": [SEED0, SEED0 + len(seqs) - 1],
+                "tip_error_p95_mm": float(np.percentile(norm, 95)) if norm.size else None,
+                "norm_e_mean_mm": float(norm.mean()) if norm.size else None,
+                "norm_e_sd_mm": float(norm.std(ddof=1)) if norm.size > 1 else None,
+                "abs_e_theta_mean_deg": float(th.mean()) if th.size else None,
+                "abs_e_theta_p95_deg": float(np.percentile(th, 95)) if th.size else None,
+                "e_n_mean_mm": float(en.mean()) if en.size else None,
+                "e_p_mean_mm": float(ep.mean()) if ep.size else None,
+                "missed_fraction": float(np.mean([r["summary"]["missed_fraction"] for r in res])),
+                "latency_median_ms": float(np.median(lat_a)),
+                "latency_p99_ms": float(np.percentile(lat_a, 99)),
+                "frames_per_s": float(1000.0 / lat_a.mean()),
+                "paper_norm_e": paper, "paper_abs_e_theta_deg": MATHIASSEN_ABS_ETHETA.get(m),
+            }
+            rows.append(row)
+            log(f"  inplane {m:6s} {kind:9s} ||e|| p95 {row['tip_error_p95_mm']:.2f} mm "
+                f"(paper {paper[2] if paper else '-'}), {row['frames_per_s']:.0f} frames/s")
+    return {"rows": rows}
+
+
+def run_axial(quick: bool, log=print) -> dict:
+    rows = []
+    reps = 1 if quick else 3
+    for kind in _feature_kinds("axial", log):
+        for D in (60.0, 80.0):
+            for filt in ("paper", "lsq"):
+                res, lat = [], []
+                for k in range(reps):
+                    seq = synth.generate("axial", seed=SEED0 + int(D) * 10 + k,
+                                         rotation_depth_mm=D, insertion_mm=100.0,
+                                         background="inhomogeneous")
+                    from ..trackers._axial import AxialParams
+
+                    tr = make_tracker("axial", "carriere", kind, seed=k,
+                                      params=AxialParams(filter_update=filt))
+                    est = tr.run(seq)
+                    res.append(evaluate("axial", est, seq)["summary"])
+                    lat += [e.latency_ms for e in est]
+                tip = np.array([r.get("tip_prediction_error_mm", np.nan) for r in res], float)
+                shape = np.array([r.get("shape_error_mm2", np.nan) for r in res], float)
+                track = np.array([r.get("tracking_error_median_mm", np.nan) for r in res], float)
+                lat_a = np.asarray(lat)
+                row = {
+                    "suite": "axial", "tracker": "axial", "method": f"carriere/{filt}",
+                    "features": kind, "D_mm": D, "sequences": reps,
+                    "tip_prediction_error_mm": float(np.nanmean(tip)),
+                    "tip_prediction_error_sd_mm": float(np.nanstd(tip)),
+                    "shape_error_mm2": float(np.nanmean(shape)),
+                    "tracking_error_median_mm": float(np.nanmean(track)),
+                    "latency_median_ms": float(np.median(lat_a)),
+                    "latency_p99_ms": float(np.percentile(lat_a, 99)),
+                    "frames_per_s": float(1000.0 / lat_a.mean()),
+                    "paper_table_I": CARRIERE_TABLE_I[int(D)],
+                }
+                rows.append(row)
+                log(f"  axial D={D:.0f} {filt:5s} {kind:9s} tip "
+                    f"{row['tip_prediction_error_mm']:.3f} mm, shape "
+                    f"{row['shape_error_mm2']:.1f} mm2, {row['latency_median_ms']:.2f} ms")
+    return {"rows": rows}
+
+
+def markdown_inplane(result: dict, machine: dict) -> str:
+    lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
+             "| method | features | ‖e‖ mean ± sd (mm) | ‖e‖ 95th (mm) | paper ‖e‖ 95th | "
+             "abs e_θ mean (°) | frames/s |", "|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        p = r["paper_norm_e"]
+        lines.append(f"| {r['method']} | {r['features']} | {r['norm_e_mean_mm']:.2f} ± "
+                     f"{r['norm_e_sd_mm']:.2f} | {r['tip_error_p95_mm']:.2f} | "
+                     f"{p[2] if p else '-'} | {r['abs_e_theta_mean_deg']:.2f} | "
+                     f"{r['frames_per_s']:.0f} |")
+    return "\n".join(lines)
+
+
+def markdown_axial(result: dict, machine: dict) -> str:
+    lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
+             "| D (mm) | filter | features | tip prediction error (mm) | shape error (mm²) | "
+             "paper tip / shape | ms/frame |", "|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        p = r["paper_table_I"]
+        lines.append(f"| {r['D_mm']:.0f} | {r['method']} | {r['features']} | "
+                     f"{r['tip_prediction_error_mm']:.3f} ± {r['tip_prediction_error_sd_mm']:.3f}"
+                     f" | {r['shape_error_mm2']:.1f} | {p[0]} ± {p[1]} / {p[2]} ± {p[3]} | "
+                     f"{r['latency_median_ms']:.2f} |")
+    return "\n".join(lines)
