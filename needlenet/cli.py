@@ -214,7 +214,13 @@ _TRAIN_EXTRA = ("needs the training extra (torch, lightning, onnx): "
 def _require_training(cmd: str) -> None:
     import importlib.util
 
-    missing = [m for m in ("torch", "lightning", "onnx") if importlib.util.find_spec(m) is None]
+    def absent(name: str) -> bool:
+        try:
+            return importlib.util.find_spec(name) is None
+        except (ImportError, ValueError):
+            return True
+
+    missing = [m for m in ("torch", "lightning", "onnx") if absent(m)]
     if missing:
         raise CLIError(f"{cmd} {_TRAIN_EXTRA} (missing: {', '.join(missing)})")
 
