@@ -25,9 +25,14 @@ def evaluate(modality: str, estimates, seq) -> dict:
     if modality == "inplane":
         out = inplane_metrics(estimates, seq)
     elif modality == "volume":
-        from ._volume_metrics import volume_metrics
+        from ._volume_metrics import evaluate_volume
 
-        out = volume_metrics(estimates, seq)
+        ev = evaluate_volume(estimates, seq)
+        summary = dict(ev.summary)
+        summary.setdefault("failure_rate", summary.get("failure_rate"))
+        per = {k: np.asarray(getattr(ev, k)).tolist() for k in
+               ("tip_error", "axis_error", "alpha_error_deg", "beta_error_deg")}
+        out = {"summary": summary, "per_frame": per}
     elif modality == "axial":
         from ._axial_metrics import axial_metrics
 

@@ -1,12 +1,13 @@
 """Feature sources: classical features from the papers and learned ONNX likelihood maps."""
 
 from ._base import FeatureSource, Frame, FrameError, IntensityFeatures, Likelihood, check_frame
+from ._frangi import FrangiFeatures, FrangiParams
 from ._learned import LearnedFeatures, ModelError
 from ._variance import VarianceFeatures
 
 __all__ = ["FeatureSource", "Frame", "FrameError", "IntensityFeatures", "Likelihood",
            "check_frame", "learned_features", "LearnedFeatures", "ModelError",
-           "VarianceFeatures"]
+           "VarianceFeatures", "FrangiFeatures", "FrangiParams"]
 
 
 def learned_features(modality: str, model: str | None = None, threads: int = 2) -> FeatureSource:

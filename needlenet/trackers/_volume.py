@@ -1,0 +1,1098 @@
+"""Needle trackers for 3D ultrasound volumes: Uhercik 2010's RANSAC, Zhao 2013's ROI-RK and
+Chatelain 2013's insertion detection + Kalman-predicted VOI.
+
+Three methods behind one :class:`VolumeTracker`:
+
+``"ransac"``
+    The model-fitting RANSAC of Uhercik 2010 as Zhao 2013 describes it (Appendix B), on every
+    volume from scratch: threshold the imaged sector at the 99th percentile (eq. (B1)), fit a
+    line with the adaptive trial count (eq. (B8)) capped at Zhao's 50 trials, refine it by
+    least squares on the inliers (local optimisation, eq. (B6)) and find the tip where the
+    intensity along the axis drops below the threshold.
+
+``"roi-rk"``
+    Zhao 2013: initialise on the tubularness of the whole first volume (Frangi's line filter,
+    Appendix A), then in each volume run the same RANSAC inside a cylindrical ROI around the
+    axis predicted by the Kalman filter (eq. (1)), measure the tip velocity by 3-D speckle
+    tracking (eq. (5)) and correct the state ``[beta, alpha, v_beta, v_alpha, p_t, v_t]`` of
+    eqs. (2)-(4). When the ROI loses the needle the tracker reports ``lost`` and initialises
+    again on the next volume.
+
+``"chatelain"``
+    Chatelain 2013, II-B to II-D: detect an insertion from volume differences (fixed-size
+    candidate set, variance test, geometric median, entry on the boundary), then track the
+    n control points of the needle curve with a constant-velocity Kalman filter, select a
+    fixed number of the brightest voxels inside a VOI around the predicted curve (eq. (15)),
+    fit the curve by RANSAC with the angle constraint to the predicted direction (eq. (22)),
+    refine it by least squares and find the tip by the intensity drop, bridging small gaps.
+    A withdrawal moves the measured tip back; a needle that vanishes is reported ``lost`` and
+    the tracker waits for a new insertion.
+
+All three share one measurement (:func:`_measure`): candidates, batched RANSAC, least
+squares on the inliers, an axis oriented from the entry to the tip, and the tip where the
+maximum of the feature over the needle's cross-section drops below the threshold for good
+(gaps shorter than ``max_gap_mm`` bridged), one needle-image cap (``tip_cap_mm``) short of
+the drop. The least squares is repeated on the inliers between the entry and the tip: the
+inliers of the infinite line beyond the needle are background.
+
+Choices where the papers are silent are fields of :class:`VolumeTrackerParams`, each with its
+reason. Three are not in the papers at all: the initialisations accept only a needle that
+starts near the sector's boundary (Zhao: "the needle is inserted from the outside"), trying
+the next RANSAC hypothesis otherwise; Chatelain's delta test measures the distance of the
+change to the sector's boundary, not to the faces of the array; and after a detection the
+needle's tip is its end nearer to the change (the needle changes the volume where it moves).
+
+Everything is in millimetres in the probe frame, point order (x, y, z), through the frame's
+:class:`synth.Grid` (voxels are anisotropic). Scan-converted sector volumes are exactly 0
+outside the sector: those voxels are not tissue and never become candidates or thresholds.
+The only Python loops run over RANSAC batches, initialisation attempts and Kalman steps,
+never over voxels or hypotheses.
+
+Known behaviour. Whole-volume RANSAC capped at 50 trials misses most short needles, as Zhao
+reports (inlier ratio ~0.05, eq. (B8) asks for ~1800 trials); with enough trials it still
+prefers a bright line-like tissue structure when that is longer than the needle. On physical
+needle echoes (``volume-motion``) the fitted axis follows the wall facing the probe, about
+0.5 mm (one radius of the 18 G needle) above the centre line. At CR 2.5 the 99th-percentile
+threshold sits at the needle's own level (Zhao's Table 3: thresholds above ~70 fail at CR
+2.5) and the line filter's strongest tubes are tissue, so the roi-rk initialisation fails or
+locks on a tissue structure; Chatelain's detection of the moving needle does not.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy import ndimage
+
+from ..backends._insertion import InsertionDetector, InsertionParams
+from ..backends._kalman import (
+    KalmanFilter,
+    angles_to_direction,
+    chatelain_control_points_model,
+    direction_to_angles,
+    zhao_model,
+)
+from ..backends._ncc import tip_velocity
+from ..backends._ransac import LineModel, PolyCurveModel, RansacResult, ransac, tip_along_axis
+from ..features._base import FeatureSource, Frame, Likelihood
+from ..features._frangi import FrangiFeatures, FrangiParams
+from ._base import NeedleEstimate, Status, Tracker
+
+__all__ = ["VolumeTracker", "VolumeTrackerParams"]
+
+# The insertion detector's own distance test is switched off with this (see _search_chatelain).
+_NO_LIMIT_MM = 1e9
+# Fewest candidates of the insertion detection: a geometric median needs a few points.
+_MIN_INSERTION_CANDIDATES = 10
+# Directions of the rays along which the distance to the sector's boundary is measured: the
+# 26 neighbours of a voxel.
+_RAYS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
+                  if (i, j, k) != (0, 0, 0)], float)
+_RAYS /= np.linalg.norm(_RAYS, axis=1, keepdims=True)
+# A tip hint decides the orientation when it projects farther than this fraction of the
+# needle's length from its middle.
+_HINT_MARGIN = 0.1
+# Offsets, perpendicular to the axis and in units of ``profile_radius_mm``, of the lines along
+# which the tip profile is sampled: the axis itself and six lines around it.
+_PROFILE_OFFSETS = np.array(
+    [[0.0, 0.0]] + [[math.cos(a), math.sin(a)] for a in np.arange(6) * math.pi / 3]
+)
+
+
+@dataclass(frozen=True)
+class VolumeTrackerParams:
+    """Parameters of the three volume trackers, with the papers' values where they give them.
+
+    Zhao 2013 / Uhercik 2010 (Appendix B)
+    -------------------------------------
+    threshold_percentile : float
+        T_I of eq. (B1): "99% of the voxels are from the background", taken over the imaged
+        sector only (voxels outside the sector are 0 and are not tissue).
+    percentile_stride : int
+        T_I is estimated on every ``stride``-th voxel per axis (1/8 of them for 2): a
+        percentile over ~10^5 voxels, at a fraction of the cost. 1 uses every voxel.
+    inlier_radius_mm : float
+        r of eq. (B5) (Chatelain's f0, eq. (19)): "the expected radius of the needle in the
+        image". Ours: the 0.5 mm radius plus half a voxel diagonal of a 128^3 volume.
+    min_sample_distance_mm : float
+        d_min of Appendix B (not given by Zhao); 2 mm: two points closer than four needle
+        radii define the direction poorly.
+    max_trials : int
+        J_max: Zhao caps RANSAC at 50 trials ("to limit the processing time").
+    init_max_trials : int
+        Cap for the initialisations (roi-rk on the tubularness, chatelain after an
+        insertion), where the inlier ratio is lowest. Ours.
+    init_attempts : int
+        Initialisations are sequential RANSAC: a hypothesis that is not a needle inserted from
+        outside is set aside with its inliers and RANSAC runs again, this many times at most.
+    entry_margin_mm : float
+        A needle found at initialisation must start within this distance of the sector's
+        boundary (it is inserted from outside, Zhao App. B). Ours: 5 mm, as a moving phantom
+        carries the visible entry up to ~4 mm into the sector.
+    success_probability : float
+        eta of eq. (B8) (1 - epsilon of Chatelain eq. (21)).
+    batch_size : int
+        Hypotheses drawn and scored at once; the adaptive count of eq. (B8) is checked between
+        batches, so small batches let RANSAC stop early.
+    refine_iterations : int
+        Least-squares refinements of the winner (local optimisation, eq. (B6)).
+    min_inliers : int
+        Fewer inliers than this and the needle is not found.
+    min_length_mm : float
+        Shortest visible needle (entry to tip) that counts as a needle.
+    max_gap_mm : float
+        Gaps in the intensity along the axis shorter than this are bridged when looking for the
+        tip (Chatelain II-D: "we discard small intensity gaps"); it also splits the inliers into
+        pieces, of which the largest is the needle.
+    profile_radius_mm : float
+        The profile along the axis is the maximum over the axis and six parallel lines this
+        far from it (half the needle radius): a dark needle voxel or a sub-voxel error of the
+        axis does not look like a drop.
+    tip_cap_mm : float
+        The bright region along the axis ends this far beyond the tip, which is subtracted.
+        Zhao's needle voxels are those closer than the radius to the axis segment (eq. (9)),
+        so its image ends in a cap of one radius (0.5 mm), which the linear interpolation of
+        the profile stretches by about 0.1 mm more (measured on 128^3 CR 4.7 volumes: the
+        median error along the axis is then 0). 0.6 mm.
+    likelihood_threshold : float
+        For learned features: likelihood above which a voxel is needle (candidates and tip).
+    likelihood_floor : float
+        For learned features: voxels below this never become weighted candidates.
+    max_candidates : int
+        For learned features: at most this many candidates (the most likely ones) are kept.
+
+    Zhao 2013 ROI-RK
+    ----------------
+    roi_radius_mm : float
+        R_ROI of eq. (1). Zhao does not give it; we take five needle radii, the cylinder Zhao
+        uses for the contrast ratio (eq. (9)): wide enough for the axis error of the Frangi
+        initialisation and for a tip moving 1 mm per volume, narrow enough to keep the
+        inlier ratio above Zhao's 0.4.
+    max_axis_jump_deg, max_axis_shift_mm : float
+        The ROI has lost the needle when the fitted axis turns more than this from the
+        predicted one, or passes farther than this from the predicted tip.
+    frangi : FrangiParams
+        Line filter of the initialisation (Appendix A).
+    speckle_kernel_mm, speckle_search_mm : float
+        Half sizes of the kernel region around the tip and of the extra search margin for the
+        speckle tracking (eq. (5)); the search margin bounds the tip displacement per volume.
+    q_angle, q_tip, r_angle, r_position, r_velocity : float
+        Noise of the Kalman filter of eqs. (2)-(3) (:func:`zhao_model`), in rad^2/s^3,
+        mm^2/s^3, rad^2, mm^2 and mm^2/s^2. Zhao estimated them "by a large number of repeat
+        trials" and does not report them; so did we, on CR 4.7 volumes: the measured tip is
+        within 0.1-0.2 mm of the truth (r_position = 0.2^2), while the speckle-tracked
+        velocity is either the needle's or 0, the static speckle around the tip competing
+        with the needle (r_velocity = 2^2, so that the tip positions carry the velocity).
+    p0_angle_rate, p0_velocity : float
+        Initial variances of the angular rates (rad^2/s^2) and tip velocity (mm^2/s^2); Zhao
+        starts the rates at zero.
+
+    Chatelain 2013
+    --------------
+    insertion : InsertionParams
+        Insertion detection (II-B): variance threshold tau and distance delta (to the sector's
+        boundary). tau = 110 mm^2 separates, on Zhao volumes, a moving needle (at most 75
+        mm^2) from a static needle-free volume (at least 167 mm^2) with 100 candidates.
+    insertion_candidates_mm3 : float or None
+        Size of the candidate set of eq. (1) as a volume (2.7 mm^3: the 100 voxels of a
+        128^3 volume, which best separated the two cases above); None keeps
+        ``insertion.n_candidates``.
+    n_control_points : int
+        n of eq. (3): 2 for a straight needle, 3 for a flexible one.
+    voi_radius_mm, voi_margin_mm : float
+        VOI: voxels closer than the radius to the predicted curve, extended by the margin
+        beyond both ends (the tip moves 0.6 mm per volume at 3 mm/s and 5 volumes/s).
+    voi_candidates_mm3 : float
+        Fixed size of the candidate set of eq. (15) (as eq. (1)), given as the volume of the
+        voxels so that it means the same at every voxel size: 10 mm^3 is about 11 mm of a
+        0.5-mm-radius needle (400 voxels of a 128^3 Zhao volume).
+    init_voi_radius_mm : float
+        Radius of the ball around the detected change in which the needle is first fitted.
+    max_angle_deg : float
+        alpha_0 of eq. (22).
+    detection_window : int
+        Volumes after a detection during which the needle is looked for.
+    q_control, r_control : float
+        Noise of the constant-velocity model of eqs. (4)-(9) (mm^2/s^3, mm^2); q allows the
+        velocity reversal of a withdrawal within a volume or two.
+    p0_control_velocity : float
+        Initial variance of the control-point velocities (mm^2/s^2).
+    max_coast_volumes : int
+        Volumes without a measurement (reported ``lost``) before the Kalman state is dropped
+        and the tracker waits for a new insertion.
+
+    Common
+    ------
+    default_dt_s : float
+        Time step used when timestamps do not advance.
+    """
+
+    threshold_percentile: float = 99.0
+    percentile_stride: int = 2
+    inlier_radius_mm: float = 0.75
+    min_sample_distance_mm: float = 2.0
+    max_trials: int = 50
+    init_max_trials: int = 1000
+    init_attempts: int = 5
+    entry_margin_mm: float = 5.0
+    success_probability: float = 0.99
+    batch_size: int = 16
+    refine_iterations: int = 2
+    min_inliers: int = 10
+    min_length_mm: float = 3.0
+    max_gap_mm: float = 1.0
+    profile_radius_mm: float = 0.25
+    tip_cap_mm: float = 0.6
+    likelihood_threshold: float = 0.5
+    likelihood_floor: float = 0.05
+    max_candidates: int = 20_000
+    # roi-rk
+    roi_radius_mm: float = 2.5
+    max_axis_jump_deg: float = 15.0
+    max_axis_shift_mm: float = 2.5
+    frangi: FrangiParams = FrangiParams()
+    speckle_kernel_mm: float = 1.5
+    speckle_search_mm: float = 2.0
+    q_angle: float = 1e-3
+    q_tip: float = 1.0
+    r_angle: float = math.radians(1.0) ** 2
+    r_position: float = 0.04
+    r_velocity: float = 4.0
+    p0_angle_rate: float = math.radians(5.0) ** 2
+    p0_velocity: float = 25.0
+    # chatelain
+    insertion: InsertionParams = InsertionParams(n_candidates=100, variance_threshold_mm2=110.0,
+                                                 distance_threshold_mm=15.0)
+    insertion_candidates_mm3: float | None = 2.7
+    n_control_points: int = 2
+    voi_radius_mm: float = 3.0
+    voi_margin_mm: float = 5.0
+    voi_candidates_mm3: float = 10.0
+    init_voi_radius_mm: float = 20.0
+    max_angle_deg: float = 10.0
+    detection_window: int = 10
+    q_control: float = 50.0
+    r_control: float = 0.25
+    p0_control_velocity: float = 100.0
+    max_coast_volumes: int = 2
+    default_dt_s: float = 1.0
+
+    def __post_init__(self):
+        positive = ("inlier_radius_mm", "min_length_mm", "profile_radius_mm", "roi_radius_mm",
+                    "max_axis_jump_deg", "max_axis_shift_mm", "speckle_kernel_mm", "q_angle",
+                    "q_tip", "r_angle", "r_position", "r_velocity", "p0_angle_rate",
+                    "p0_velocity", "voi_radius_mm", "voi_candidates_mm3", "init_voi_radius_mm",
+                    "max_angle_deg", "q_control", "r_control", "p0_control_velocity",
+                    "default_dt_s")
+        for name in positive:
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ValueError(f"VolumeTrackerParams.{name} must be finite and > 0, "
+                                 f"got {value}")
+        for name in ("min_sample_distance_mm", "max_gap_mm", "speckle_search_mm",
+                     "voi_margin_mm", "tip_cap_mm", "entry_margin_mm"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"VolumeTrackerParams.{name} must be finite and >= 0, "
+                                 f"got {value}")
+        if not 0.0 < self.threshold_percentile < 100.0:
+            raise ValueError(f"threshold_percentile must be in (0, 100), "
+                             f"got {self.threshold_percentile}")
+        if not 0.0 <= self.success_probability < 1.0:
+            raise ValueError(f"success_probability must be in [0, 1), "
+                             f"got {self.success_probability}")
+        for name, low in (("percentile_stride", 1), ("max_trials", 1), ("init_max_trials", 1),
+                          ("init_attempts", 1), ("batch_size", 1), ("refine_iterations", 0),
+                          ("min_inliers", 2), ("max_candidates", 2), ("detection_window", 1),
+                          ("max_coast_volumes", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or int(value) != value or value < low:
+                raise ValueError(f"VolumeTrackerParams.{name} must be an integer >= {low}, "
+                                 f"got {value!r}")
+        if self.insertion_candidates_mm3 is not None and not (
+                np.isfinite(self.insertion_candidates_mm3) and self.insertion_candidates_mm3 > 0):
+            raise ValueError(f"insertion_candidates_mm3 must be None or finite and > 0, "
+                             f"got {self.insertion_candidates_mm3}")
+        if self.n_control_points not in (2, 3):
+            raise ValueError(f"n_control_points must be 2 or 3, got {self.n_control_points!r}")
+        if not 0.0 < self.likelihood_floor <= self.likelihood_threshold < 1.0:
+            raise ValueError("need 0 < likelihood_floor <= likelihood_threshold < 1")
+
+
+# --------------------------------------------------------------------------------------------
+# Geometry on the frame's grid
+# --------------------------------------------------------------------------------------------
+
+
+class _Volume:
+    """One volume with what every method needs: the feature map, the sector, mm conversions."""
+
+    def __init__(self, frame: Frame, likelihood: Likelihood, learned: bool):
+        self.image = np.asarray(frame.image)
+        self.grid = frame.grid
+        self.spacing = np.asarray(self.grid.spacing_mm, float)  # array order
+        self.origin = np.asarray(self.grid.origin_mm, float)
+        self.shape = np.asarray(self.grid.shape)
+        self.values = np.asarray(likelihood.shaft, dtype=np.float32)
+        self.learned = learned
+        self.sector = self.image > 0  # scan-converted volumes are 0 outside the sector
+
+    def points(self, flat_index: np.ndarray) -> np.ndarray:
+        """Voxel centres (N, 3) in mm, point order, of flat indices."""
+        idx = np.stack(np.unravel_index(flat_index, self.grid.shape), axis=-1)
+        return (self.origin + idx * self.spacing)[:, ::-1]
+
+    def to_index(self, points_mm: np.ndarray) -> np.ndarray:
+        """Fractional array indices (..., 3) of points (..., 3) in mm, point order."""
+        return (np.asarray(points_mm, float)[..., ::-1] - self.origin) / self.spacing
+
+    def sample(self, array: np.ndarray, points_mm: np.ndarray, order: int = 1) -> np.ndarray:
+        """Values of ``array`` at points (..., 3) in mm; 0 outside the volume."""
+        pts = np.asarray(points_mm, float)
+        idx = self.to_index(pts.reshape(-1, 3))
+        out = ndimage.map_coordinates(array, idx.T, order=order, mode="constant", cval=0.0)
+        return out.reshape(pts.shape[:-1])
+
+
+def _count(volume_mm3: float, vol: _Volume, minimum: int) -> int:
+    """Number of voxels that make up ``volume_mm3`` (at least ``minimum``)."""
+    return max(int(minimum), round(volume_mm3 / float(np.prod(vol.spacing))))
+
+
+def _threshold(vol: _Volume, p: VolumeTrackerParams) -> float:
+    """T_I of eq. (B1): the ``threshold_percentile`` of the feature over the sector."""
+    s = p.percentile_stride
+    sub = vol.values[::s, ::s, ::s][vol.sector[::s, ::s, ::s]]
+    if sub.size == 0:
+        return math.inf
+    return float(np.percentile(sub, p.threshold_percentile))
+
+
+def _cylinder(vol: _Volume, point_mm, direction, radius_mm: float,
+              t_range: tuple[float, float] = (-math.inf, math.inf)) -> np.ndarray:
+    """Flat indices of the sector voxels within ``radius_mm`` of a line (Zhao eq. (1)).
+
+    The line is ``point + t * direction`` (mm, point order), restricted to ``t_range``. The
+    volume is walked one slice at a time along the axis the line crosses fastest; in each
+    slice only a window around the crossing, the bounding box of the cylinder's elliptic
+    section, is tested, so the cost is that of the cylinder, not of the volume.
+    """
+    p = np.asarray(point_mm, float)[::-1]  # array order
+    u = np.asarray(direction, float)[::-1]
+    u = u / np.linalg.norm(u)
+    sp, org, shape = vol.spacing, vol.origin, vol.shape
+    a = int(np.argmax(np.abs(u)))
+    b, c = (ax for ax in range(3) if ax != a)
+    coord_a = org[a] + np.arange(shape[a]) * sp[a]
+    t = (coord_a - p[a]) / u[a]
+    lo, hi = t_range
+    slack = 2.0 * radius_mm  # a slice holds points whose t differs from its crossing by < sqrt(2) R
+    k = np.flatnonzero((t >= lo - slack) & (t <= hi + slack))
+    if k.size == 0:
+        return np.zeros(0, np.int64)
+    centre = p + t[k, None] * u  # (K, 3) crossing points
+    # Half-widths of the section along b and c: R sqrt(u_a^2 + u_x^2) / |u_a|.
+    half = radius_mm * np.sqrt(u[a] ** 2 + u[[b, c]] ** 2) / abs(u[a])
+    wb, wc = (np.ceil(half / sp[[b, c]]).astype(int) + 1)
+    ib = np.rint((centre[:, b] - org[b]) / sp[b]).astype(np.int64)[:, None, None] + \
+        np.arange(-wb, wb + 1)[None, :, None]
+    ic = np.rint((centre[:, c] - org[c]) / sp[c]).astype(np.int64)[:, None, None] + \
+        np.arange(-wc, wc + 1)[None, None, :]
+    ia = k[:, None, None]
+    ib, ic, ia = np.broadcast_arrays(ib, ic, ia)
+    d_a = org[a] + ia * sp[a] - p[a]
+    d_b = org[b] + ib * sp[b] - p[b]
+    d_c = org[c] + ic * sp[c] - p[c]
+    tt = d_a * u[a] + d_b * u[b] + d_c * u[c]
+    dist2 = d_a**2 + d_b**2 + d_c**2 - tt**2
+    keep = ((dist2 <= radius_mm**2) & (tt >= lo) & (tt <= hi)
+            & (ib >= 0) & (ib < shape[b]) & (ic >= 0) & (ic < shape[c]))
+    index = np.zeros((3, int(keep.sum())), np.int64)
+    index[a], index[b], index[c] = ia[keep], ib[keep], ic[keep]
+    flat = np.ravel_multi_index(tuple(index), vol.grid.shape)
+    return flat[vol.sector.reshape(-1)[flat]]
+
+
+def _ball(vol: _Volume, centre_mm, radius_mm: float) -> np.ndarray:
+    """Flat indices of the sector voxels within ``radius_mm`` of a point."""
+    c = vol.to_index(np.asarray(centre_mm, float))
+    half = radius_mm / vol.spacing
+    lo = np.maximum(np.floor(c - half), 0).astype(int)
+    hi = np.minimum(np.ceil(c + half) + 1, vol.shape).astype(int)
+    if np.any(hi <= lo):
+        return np.zeros(0, np.int64)
+    axes = [np.arange(lo[i], hi[i]) for i in range(3)]
+    d = [((axes[i] - c[i]) * vol.spacing[i]) ** 2 for i in range(3)]
+    inside = d[0][:, None, None] + d[1][None, :, None] + d[2][None, None, :] <= radius_mm**2
+    idx = np.nonzero(inside)
+    flat = np.ravel_multi_index(tuple(idx[i] + lo[i] for i in range(3)), vol.grid.shape)
+    return flat[vol.sector.reshape(-1)[flat]]
+
+
+# --------------------------------------------------------------------------------------------
+# One measurement: candidates -> RANSAC -> axis -> tip
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Measurement:
+    """A needle found in one volume (mm, point order)."""
+
+    ok: bool
+    reason: str | None = None
+    model: LineModel | PolyCurveModel | None = None
+    entry: np.ndarray | None = None  # where the visible needle starts on the axis
+    tip: np.ndarray | None = None
+    direction: np.ndarray | None = None  # unit, entry -> tip
+    inliers: int = 0
+    trials: int = 0
+    roi_voxels: int = 0
+    a_entry: float = math.nan
+    a_tip: float = math.nan
+    entry_gap_mm: float = math.nan  # from the visible entry back to the sector's boundary
+
+
+def _fail(reason: str, trials: int = 0, roi_voxels: int = 0, inliers: int = 0) -> _Measurement:
+    return _Measurement(False, reason, trials=trials, roi_voxels=roi_voxels, inliers=inliers)
+
+
+def _candidates(vol: _Volume, region: np.ndarray | None, threshold: float,
+                p: VolumeTrackerParams, fixed_size: int | None = None):
+    """Candidate voxels and their RANSAC weights.
+
+    Classical features: voxels at or above ``threshold`` (eq. (B1)), or the ``fixed_size``
+    brightest (Chatelain eq. (15)); unweighted. Learned features: voxels above the
+    likelihood floor, the most likely first, weighted by their likelihood.
+    """
+    if region is None:
+        flat_values = vol.values.reshape(-1)
+        in_sector = vol.sector.reshape(-1)
+        if vol.learned:
+            region = np.flatnonzero((flat_values >= p.likelihood_floor) & in_sector)
+        elif fixed_size is None:
+            region = np.flatnonzero((flat_values >= threshold) & in_sector)
+        else:
+            region = np.flatnonzero(in_sector)
+    values = vol.values.reshape(-1)[region]
+    if vol.learned:
+        keep = values >= p.likelihood_floor
+        region, values = region[keep], values[keep]
+        n = min(p.max_candidates if fixed_size is None else fixed_size, region.size)
+        if n < region.size:
+            top = np.argpartition(values, region.size - n)[region.size - n:]
+            region, values = region[top], values[top]
+        return region, values.astype(float)
+    if fixed_size is not None:  # Chatelain eq. (15): the fixed_size brightest voxels
+        n = min(fixed_size, region.size)
+        top = np.argpartition(values, region.size - n)[region.size - n:] if n else []
+        region = region[top]
+        values = values[top]
+        region = region[values > 0]
+        return region, None
+    return region[values >= threshold], None
+
+
+def _main_piece(a: np.ndarray, gap: float) -> tuple[float, float, int]:
+    """The longest run (by count) of sorted coordinates ``a`` without a gap above ``gap``."""
+    s = np.sort(a)
+    breaks = np.flatnonzero(np.diff(s) > gap)
+    starts = np.r_[0, breaks + 1]
+    ends = np.r_[breaks, s.size - 1]
+    counts = ends - starts + 1
+    j = int(np.argmax(counts))
+    return float(s[starts[j]]), float(s[ends[j]]), int(counts[j])
+
+
+def _needle_run(profile, a_values, level: float, max_gap: float, a0: float,
+                a1: float) -> int | None:
+    """Index of the first sample of the run of the profile that overlaps [a0, a1] most.
+
+    Runs are the samples at or above ``level``, joined across gaps shorter than ``max_gap``
+    (as :func:`tip_along_axis` joins them); None when no sample reaches the level.
+    """
+    above = np.greater_equal(profile, level, where=np.isfinite(profile),
+                             out=np.zeros(profile.shape, bool))
+    on = np.flatnonzero(above)
+    if on.size == 0:
+        return None
+    gap = a_values[on[1:]] - a_values[on[:-1] + 1]  # first sample below to next above
+    split = np.flatnonzero((np.diff(on) > 1) & (gap >= max_gap))
+    starts = on[np.r_[0, split + 1]]
+    ends = on[np.r_[split, on.size - 1]]
+    overlap = np.minimum(a_values[ends], a1) - np.maximum(a_values[starts], a0)
+    length = a_values[ends] - a_values[starts]
+    best = np.lexsort((-length, -overlap))[0]  # most overlap, then longest
+    return int(starts[best])
+
+
+def _perpendiculars(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors perpendicular to ``u`` and to each other."""
+    helper = np.eye(3)[int(np.argmin(np.abs(u)))]
+    e1 = np.cross(u, helper)
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(u, e1)
+
+
+def _profile(vol: _Volume, model, a_values: np.ndarray, radius_mm: float) -> np.ndarray:
+    """Feature along the axis: the maximum over the centre line and six parallel lines.
+
+    A maximum over the needle's cross-section: the needle is there if any of its voxels is
+    bright, which keeps the profile above the threshold where single needle voxels are dark
+    (Zhao's needle voxels are drawn independently) or the axis is a fraction of a voxel off.
+    """
+    centre = model.points_at(a_values)  # (K, 3)
+    e1, e2 = _perpendiculars(model.principal_direction)
+    offsets = radius_mm * (_PROFILE_OFFSETS[:, :1] * e1 + _PROFILE_OFFSETS[:, 1:] * e2)
+    pts = centre[None, :, :] + offsets[:, None, :]  # (7, K, 3)
+    return vol.sample(vol.values, pts).max(axis=0)
+
+
+def _distance_to_boundary(vol: _Volume, point, u, max_mm: float, step: float) -> float:
+    """Distance from ``point`` along ``u`` to the first voxel outside the sector."""
+    s = np.arange(1, int(max_mm / step) + 1) * step
+    inside = vol.sample(vol.sector.view(np.uint8), point + s[:, None] * u, order=0) > 0
+    out = np.flatnonzero(~inside)
+    return float(s[out[0]]) if out.size else max_mm
+
+
+def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
+             p: VolumeTrackerParams, rng, *, max_trials: int, predicted_direction=None,
+             max_angle_deg: float | None = None, fixed_size: int | None = None,
+             model: str = "line", tip_hint=None) -> _Measurement:
+    """One localisation: candidates -> RANSAC -> least squares -> oriented axis -> tip.
+
+    ``region``: flat indices of the ROI/VOI (None: the whole sector); ``threshold``: T_I of
+    eq. (B1) (for learned features the likelihood threshold is used instead);
+    ``fixed_size``: take that many brightest voxels instead (Chatelain eq. (15));
+    ``predicted_direction``: orients the axis (and, with ``max_angle_deg``, constrains it,
+    Chatelain eq. (22)). Without it, the tip is the end of the needle nearer to
+    ``tip_hint`` when that point projects clearly off the needle's middle, and otherwise the
+    entry is the end nearer to the sector's boundary.
+    """
+    roi_voxels = 0 if region is None else int(region.size)
+    cand, weights = _candidates(vol, region, threshold, p, fixed_size)
+    pts = vol.points(cand)
+    r_in = p.inlier_radius_mm
+    if len(pts) < p.min_inliers:
+        return _fail(f"too few candidates: {len(pts)} < {p.min_inliers}", 0, roi_voxels)
+    res: RansacResult = ransac(
+        pts, model, residual_threshold=r_in, weights=weights,
+        min_sample_distance=p.min_sample_distance_mm,
+        predicted_direction=predicted_direction, max_angle_deg=max_angle_deg,
+        success_probability=p.success_probability, max_trials=max_trials,
+        batch_size=p.batch_size, order=p.n_control_points,
+        refine_iterations=p.refine_iterations, rng=rng)  # Zhao App. B, Chatelain II-D
+    if not res:
+        return _fail(f"RANSAC: {res.reason}", res.n_trials, roi_voxels)
+    fitted = res.model
+    a = fitted.parameter(pts[res.inliers])
+    a0, a1, n_in = _main_piece(a, p.max_gap_mm)  # the needle: the largest piece of inliers
+    if n_in < p.min_inliers:
+        return _fail(f"too few inliers: {n_in} < {p.min_inliers}", res.n_trials, roi_voxels,
+                     n_in)
+    if predicted_direction is None:
+        u = fitted.principal_direction
+        flip = None
+        if tip_hint is not None and a1 > a0:
+            f = (float(fitted.parameter(np.asarray(tip_hint, float)[None])[0]) - a0) / (a1 - a0)
+            if abs(f - 0.5) > _HINT_MARGIN:
+                flip = f < 0.5
+        if flip is None:
+            # The needle comes in through the sector's boundary, so its entry is the end of
+            # the inliers nearer to the boundary along the axis.
+            far = float(np.linalg.norm(vol.spacing * vol.shape))
+            step = 0.5 * float(vol.spacing.min())
+            to_lo = _distance_to_boundary(vol, fitted.points_at(np.array([a0]))[0], -u, far,
+                                          step)
+            to_hi = _distance_to_boundary(vol, fitted.points_at(np.array([a1]))[0], u, far,
+                                          step)
+            flip = to_hi < to_lo
+        if flip:
+            fitted = fitted.oriented(-u)
+            a0, a1, n_in = _main_piece(fitted.parameter(pts[res.inliers]), p.max_gap_mm)
+    level = p.likelihood_threshold if vol.learned else threshold
+    found = _locate(vol, fitted, a0, a1, level, p, r_in)
+    if found is None:
+        return _fail("no sample of the axis reaches the threshold", res.n_trials, roi_voxels,
+                     n_in)
+    # Local optimisation on the needle itself: least squares on the inliers between the entry
+    # and the tip (Zhao App. B minimises eq. (B6) over the inliers; the inliers beyond the
+    # needle's ends, along the infinite line, are background).
+    a_entry, a_drop = found
+    on_needle = res.inliers & _between(fitted.parameter(pts), a_entry - r_in, a_drop + r_in)
+    if np.count_nonzero(on_needle) >= p.min_inliers:
+        w = None if weights is None else weights[on_needle]
+        try:
+            refit = (LineModel.from_inliers(pts[on_needle], w) if model == "line"
+                     else PolyCurveModel.from_inliers(pts[on_needle], w, order=fitted.order))
+        except ValueError:
+            refit = None
+        if refit is not None:
+            refit = refit.oriented(fitted.principal_direction)
+            a_refit = refit.parameter(pts[on_needle])
+            again = _locate(vol, refit, float(a_refit.min()), float(a_refit.max()), level, p,
+                            r_in)
+            if again is not None:
+                fitted, (a_entry, a_drop) = refit, again
+    a_tip = a_drop - p.tip_cap_mm  # the image of the needle ends one cap beyond its tip
+    length = a_tip - a_entry
+    if length < p.min_length_mm:
+        return _fail(f"needle too short: {length:.2f} mm < {p.min_length_mm} mm", res.n_trials,
+                     roi_voxels, n_in)
+    entry, tip = fitted.points_at(np.array([a_entry, a_tip]))
+    direction = (tip - entry) / np.linalg.norm(tip - entry)
+    n_inliers = int(np.count_nonzero(fitted.residuals(pts) < r_in))
+    far = float(np.linalg.norm(vol.spacing * vol.shape))
+    gap = _distance_to_boundary(vol, entry, -direction, far, 0.5 * float(vol.spacing.min()))
+    return _Measurement(True, None, fitted, entry, tip, direction, n_inliers, res.n_trials,
+                        roi_voxels, a_entry, a_tip, gap)
+
+
+def _between(a: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    return (a >= lo) & (a <= hi)
+
+
+def _locate(vol: _Volume, fitted, a0: float, a1: float, level: float, p: VolumeTrackerParams,
+            r_in: float) -> tuple[float, float] | None:
+    """Where the needle starts and where its image ends along a fitted axis.
+
+    The profile along the axis is split into runs of samples at or above ``level``, gaps
+    shorter than ``max_gap_mm`` bridged (Chatelain II-D: "we discard small intensity gaps");
+    the needle is the run that overlaps the inliers [a0, a1] most (a bright structure
+    crossing the axis is not). Its end is where the feature "drops below the threshold" for
+    good (Zhao App. B), interpolated by :func:`tip_along_axis`.
+    """
+    step = 0.5 * float(vol.spacing.min())
+    span = float(np.linalg.norm(vol.spacing * vol.shape))
+    a_values = np.arange(a0 - p.max_gap_mm - 2.0 * r_in, a0 + span, step)
+    profile = _profile(vol, fitted, a_values, p.profile_radius_mm)
+    run = _needle_run(profile, a_values, level, p.max_gap_mm, a0, a1)
+    if run is None:
+        return None
+    found = tip_along_axis(profile[run:], a_values[run:], level, p.max_gap_mm)
+    return float(a_values[run]), float(found.position)
+
+
+def _angles(u) -> tuple[float, float]:
+    beta, alpha = direction_to_angles(np.asarray(u, float))  # Zhao eq. (4)
+    return float(beta), float(alpha)
+
+
+def _wrap(angle: float) -> float:
+    """Angle in (-pi, pi]."""
+    return float(math.pi - (math.pi - angle) % (2.0 * math.pi))
+
+
+# --------------------------------------------------------------------------------------------
+# The tracker
+# --------------------------------------------------------------------------------------------
+
+
+class VolumeTracker(Tracker):
+    """Needle tracking in 3D ultrasound volumes: ``"ransac"``, ``"roi-rk"`` or ``"chatelain"``.
+
+    Parameters
+    ----------
+    method : {"ransac", "roi-rk", "chatelain"}
+        See the module documentation.
+    features : FeatureSource, optional
+        Default :class:`IntensityFeatures`. A learned source (``kind == "learned"``) turns the
+        threshold into likelihood-weighted candidates, replaces the line filter of the roi-rk
+        initialisation and the volume differences of the insertion detection.
+    params : VolumeTrackerParams, optional
+    rng : numpy.random.Generator or int or None
+        RANSAC's random generator (or its seed).
+
+    Each :meth:`update` returns a :class:`NeedleEstimate` with the tip (mm, x, y, z), the unit
+    direction from the entry to the tip, the tip covariance (mm^2; the Kalman filter's for
+    roi-rk and chatelain, ``r_position * I`` for ransac) and extras ``axis_point_mm`` (where
+    the visible needle starts on the axis), ``alpha_deg``, ``beta_deg`` (eq. (4)),
+    ``inliers``, ``ransac_trials`` (minimal samples drawn, initialisation included),
+    ``roi_voxels`` (voxels of the ROI/VOI; 0 for the whole volume), ``measured_tip_mm``
+    (the tip before the Kalman filter) and ``reason`` when nothing was measured.
+
+    A learned source must return a new array from each ``likelihood`` call: chatelain keeps
+    the previous map for the difference of the next volume.
+    """
+
+    modality = "volume"
+    methods = ("ransac", "roi-rk", "chatelain")
+
+    def __init__(self, method: str, features: FeatureSource | None = None,
+                 params: VolumeTrackerParams | None = None,
+                 rng: np.random.Generator | int | None = None):
+        self.params = VolumeTrackerParams() if params is None else params
+        self._rng = np.random.default_rng(rng)
+        self._frangi = FrangiFeatures(self.params.frangi)
+        super().__init__(method, features)
+
+    # -- state ---------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        super().reset()
+        self._kf: KalmanFilter | None = None
+        self._t_prev: float | None = None
+        self._prev_image: np.ndarray | None = None  # roi-rk: speckle tracking
+        self._prev_map: np.ndarray | None = None  # chatelain: insertion detection
+        self._detector: InsertionDetector | None = None  # made for the first volume's grid
+        self._pending: tuple[np.ndarray, int] | None = None  # chatelain: detection, volumes left
+        self._misses = 0
+
+    @property
+    def _learned(self) -> bool:
+        return getattr(self.features, "kind", "classical") == "learned"
+
+    def _not_found(self) -> Status:
+        """``searching`` until the needle is first found, ``lost`` after that."""
+        return Status.SEARCHING if self.status == Status.SEARCHING else Status.LOST
+
+    def _dt(self, t: float) -> float:
+        dt = self.params.default_dt_s if self._t_prev is None else t - self._t_prev
+        return dt if dt > 0 else self.params.default_dt_s
+
+    # -- one frame -----------------------------------------------------------------------
+
+    def _step(self, frame: Frame) -> NeedleEstimate:
+        if frame.grid.ndim != 3:
+            raise ValueError(f"VolumeTracker needs 3D volumes, got a {frame.grid.ndim}D frame")
+        vol = _Volume(frame, self.features.likelihood(frame), self._learned)
+        dt = self._dt(frame.t)
+        if self.method == "ransac":
+            est = self._step_ransac(frame, vol)
+        elif self.method == "roi-rk":
+            est = self._step_roi_rk(frame, vol, dt)
+        else:
+            est = self._step_chatelain(frame, vol, dt)
+        self._t_prev = frame.t
+        return est
+
+    def _report(self, frame: Frame, status: Status, m: _Measurement | None, tip=None,
+                direction=None, covariance=None, reason: str | None = None,
+                axis_point=None) -> NeedleEstimate:
+        extras = {"inliers": 0, "ransac_trials": 0, "roi_voxels": 0}
+        if m is not None:
+            extras.update(inliers=m.inliers, ransac_trials=m.trials, roi_voxels=m.roi_voxels)
+        if tip is None:
+            extras["reason"] = reason if reason is not None else (m.reason if m else None)
+            return NeedleEstimate(t=frame.t, status=status, extras=extras)
+        beta, alpha = _angles(direction)
+        if axis_point is None:  # the visible entry, on the reported axis
+            length = float(m.a_tip - m.a_entry) if (m is not None and m.ok) else 0.0
+            axis_point = np.asarray(tip, float) - length * np.asarray(direction, float)
+        point = axis_point
+        extras.update(axis_point_mm=np.asarray(point, float), alpha_deg=math.degrees(alpha),
+                      beta_deg=math.degrees(beta))
+        if m is not None and m.ok:
+            extras["measured_tip_mm"] = np.asarray(m.tip, float)
+        if reason is not None:
+            extras["reason"] = reason
+        return NeedleEstimate(t=frame.t, status=status, tip_mm=np.asarray(tip, float),
+                              direction=np.asarray(direction, float),
+                              covariance=np.asarray(covariance, float), extras=extras)
+
+    # -- ransac (Uhercik 2010 / Zhao Appendix B) -----------------------------------------
+
+    def _step_ransac(self, frame: Frame, vol: _Volume) -> NeedleEstimate:
+        p = self.params
+        threshold = _threshold(vol, p)  # eq. (B1)
+        m = _measure(vol, None, threshold, p, self._rng, max_trials=p.max_trials)
+        if not m.ok:
+            status = self._not_found()
+            return self._report(frame, status, m)
+        return self._report(frame, Status.TRACKING, m, m.tip, m.direction,
+                            p.r_position * np.eye(3))
+
+    # -- roi-rk (Zhao 2013) --------------------------------------------------------------
+
+    def _initialise_roi_rk(self, frame: Frame, vol: _Volume, threshold: float) -> _Measurement:
+        """Step 1 of Zhao: RANSAC on the tubularness of the whole volume places the first ROI,
+        in which the needle is measured on the intensity.
+
+        The hypothesis must look like a needle inserted from outside (Zhao App. B: "the
+        needle is inserted from the outside"): bright along its axis, at least
+        ``min_length_mm`` long, starting within ``entry_margin_mm`` of the sector's boundary.
+        A hypothesis that is not (a tubular structure of the tissue) is set aside with its
+        inliers and RANSAC runs again, up to ``init_attempts`` times (sequential RANSAC).
+        """
+        p = self.params
+        if self._learned:  # a learned map already says where the needle is
+            cand, weights = _candidates(vol, None, threshold, p)
+            pts, r_in = vol.points(cand), p.inlier_radius_mm
+        else:
+            tub = self._frangi.tubularness(frame)  # Appendix A, whole volume
+            sector = _block_sector(vol.sector, tub.factor) & (tub.values > 0)
+            values = tub.values[sector]
+            if values.size < p.min_inliers:
+                return _fail("no tubular structure in the volume")
+            t_tub = float(np.percentile(values, p.threshold_percentile))  # eq. (B1)
+            idx = np.flatnonzero(sector.reshape(-1) & (tub.values.reshape(-1) >= t_tub))
+            pts = tub.grid.index_to_points(np.stack(np.unravel_index(idx, tub.values.shape), -1))
+            weights = tub.values.reshape(-1)[idx].astype(float)
+            # Inliers on the block-averaged grid lie up to a working voxel from the axis.
+            r_in = max(p.inlier_radius_mm, float(np.max(tub.grid.spacing_mm)))
+        keep = np.ones(len(pts), bool)
+        trials = 0
+        m = _fail("no candidates")
+        for _ in range(p.init_attempts):
+            if np.count_nonzero(keep) < p.min_inliers:
+                break
+            w = None if weights is None else weights[keep]
+            res = ransac(pts[keep], "line", residual_threshold=r_in, weights=w,
+                         min_sample_distance=p.min_sample_distance_mm,
+                         success_probability=p.success_probability,
+                         max_trials=p.init_max_trials, batch_size=p.batch_size,
+                         refine_iterations=p.refine_iterations, rng=self._rng)
+            trials += res.n_trials
+            if not res:
+                m = _fail(f"RANSAC: {res.reason}", trials)
+                break
+            region = _cylinder(vol, res.model.origin, res.model.direction, p.roi_radius_mm)
+            m = _measure(vol, region, threshold, p, self._rng, max_trials=p.max_trials)
+            m.trials += trials
+            if m.ok and m.entry_gap_mm > p.entry_margin_mm:
+                m = _fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
+                          f"mm inside the sector", m.trials, m.roi_voxels, m.inliers)
+            if m.ok:
+                return m
+            keep[np.flatnonzero(keep)[res.inliers]] = False  # set the structure aside
+        return m
+
+    def _step_roi_rk(self, frame: Frame, vol: _Volume, dt: float) -> NeedleEstimate:
+        p = self.params
+        threshold = _threshold(vol, p)  # eq. (B1)
+        if self._kf is None:  # Step 1: initialise the ROI
+            m = self._initialise_roi_rk(frame, vol, threshold)
+            if not m.ok:
+                self._prev_image = None
+                status = self._not_found()
+                return self._report(frame, status, m)
+            beta, alpha = _angles(m.direction)
+            x = np.r_[beta, alpha, 0.0, 0.0, m.tip, 0.0, 0.0, 0.0]  # rates start at zero
+            P = np.diag([p.r_angle] * 2 + [p.p0_angle_rate] * 2 + [p.r_position] * 3
+                        + [p.p0_velocity] * 3)
+            model = zhao_model(dt, q_angle=p.q_angle, q_tip=p.q_tip, r_angle=p.r_angle,
+                               r_position=p.r_position, r_velocity=p.r_velocity)
+            self._kf = KalmanFilter(x, P, model.F, model.H, model.Q, model.R)
+            self._prev_image = vol.image
+            return self._report(frame, Status.TRACKING, m, m.tip, m.direction,
+                                self._kf.P[4:7, 4:7])
+        # Step 2: predict (eqs. (2)-(3)), ROI (eq. (1)), RANSAC, speckle tracking, correct.
+        kf = self._kf
+        model = zhao_model(dt, q_angle=p.q_angle, q_tip=p.q_tip, r_angle=p.r_angle,
+                           r_position=p.r_position, r_velocity=p.r_velocity)
+        kf.F, kf.Q, kf.R = model.F, model.Q, model.R
+        prev_tip = kf.x[4:7].copy()
+        kf.predict()
+        u_pred = angles_to_direction(kf.x[0], kf.x[1])
+        tip_pred = kf.x[4:7]
+        region = _cylinder(vol, tip_pred, u_pred, p.roi_radius_mm)  # eq. (1)
+        m = _measure(vol, region, threshold, p, self._rng, max_trials=p.max_trials,
+                     predicted_direction=u_pred)
+        reason = None
+        if m.ok:
+            turn = math.degrees(math.acos(min(1.0, abs(float(m.direction @ u_pred)))))
+            w = tip_pred - m.entry
+            shift = float(np.linalg.norm(w - (w @ m.direction) * m.direction))
+            if turn > p.max_axis_jump_deg:
+                reason = f"axis jump: {turn:.1f} deg > {p.max_axis_jump_deg} deg"
+            elif shift > p.max_axis_shift_mm:
+                reason = f"axis shift: {shift:.2f} mm > {p.max_axis_shift_mm} mm"
+        else:
+            reason = m.reason
+        if reason is not None:  # the ROI has lost the needle: initialise again next volume
+            self._kf = None
+            self._prev_image = None
+            return self._report(frame, Status.LOST, m, reason=reason)
+        beta, alpha = _angles(m.direction)
+        alpha = float(kf.x[1]) + _wrap(alpha - float(kf.x[1]))  # no 2 pi jump in the innovation
+        velocity = self._speckle_velocity(vol, prev_tip, dt)  # eq. (5)
+        if velocity is not None:
+            kf.update(np.r_[beta, alpha, m.tip, velocity])  # eqs. (C5)-(C7)
+        else:  # no velocity: update on the angles and the tip only
+            kf.update(np.r_[beta, alpha, m.tip], R=kf.R[:5, :5], H=kf.H[:5])
+        self._prev_image = vol.image
+        return self._report(frame, Status.TRACKING, m, kf.x[4:7],
+                            angles_to_direction(kf.x[0], kf.x[1]), kf.P[4:7, 4:7])
+
+    def _speckle_velocity(self, vol: _Volume, tip_mm: np.ndarray, dt: float):
+        """Tip velocity (mm/s, point order) by 3-D speckle tracking (Zhao eq. (5)), or None.
+
+        The kernel is taken around the previous tip in the previous volume and searched for in
+        the current one; only the search box is handed over, so no whole volume is copied.
+        """
+        if self._prev_image is None or self._prev_image.shape != vol.image.shape:
+            return None
+        p = self.params
+        k_half = np.maximum(np.rint(p.speckle_kernel_mm / vol.spacing), 1).astype(int)
+        s_half = k_half + np.ceil(p.speckle_search_mm / vol.spacing).astype(int)
+        centre = np.rint(vol.to_index(tip_mm)).astype(int)
+        if np.any(centre < 0) or np.any(centre >= vol.shape):
+            return None
+        lo = np.maximum(centre - s_half, 0)
+        hi = np.minimum(centre + s_half + 1, vol.shape)
+        box = tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
+        try:
+            res = tip_velocity(self._prev_image[box], vol.image[box], centre - lo, k_half,
+                               s_half, vol.spacing, dt)
+        except ValueError:  # constant kernel (outside the sector) or clipped away
+            return None
+        return res.velocity_mm_s[::-1]  # array order -> point order
+
+    # -- chatelain (Chatelain 2013) ------------------------------------------------------
+
+    def _control_points(self, m: _Measurement) -> np.ndarray:
+        """Z_t: the n control points of eq. (3), entry to tip along the fitted curve."""
+        a = np.linspace(m.a_entry, m.a_tip, self.params.n_control_points)
+        return m.model.points_at(a).reshape(-1)
+
+    def _voi_count(self, vol: _Volume) -> int:
+        """Size of the fixed candidate set of eq. (15) on this grid."""
+        return _count(self.params.voi_candidates_mm3, vol, 2 * self.params.min_inliers)
+
+    def _tip_block(self) -> slice:
+        n = self.params.n_control_points
+        return slice(3 * (n - 1), 3 * n)
+
+    def _step_chatelain(self, frame: Frame, vol: _Volume, dt: float) -> NeedleEstimate:
+        p = self.params
+        previous, self._prev_map = self._prev_map, vol.values
+        if self._kf is None:
+            return self._search_chatelain(frame, vol, previous, dt)
+        n = p.n_control_points
+        kf = self._kf
+        model = chatelain_control_points_model(n, 3, dt=dt, q=p.q_control, r=p.r_control)
+        kf.F, kf.Q, kf.R = model.F, model.Q, model.R
+        kf.predict()  # eqs. (10)-(11)
+        ctrl = kf.x[: 3 * n].reshape(n, 3)
+        chord = ctrl[-1] - ctrl[0]
+        length = float(np.linalg.norm(chord))
+        if length > 0:
+            k0 = chord / length  # predicted principal direction k0^- (eq. (22))
+            bow = 0.0 if n == 2 else float(np.linalg.norm(ctrl[1] - 0.5 * (ctrl[0] + ctrl[-1])))
+            # VOI around the predicted curve (its chord, widened by the bow of a curve).
+            region = _cylinder(vol, ctrl[0], k0, p.voi_radius_mm + bow,
+                               (-p.voi_margin_mm, length + p.voi_margin_mm))
+            m = _measure(vol, region, _threshold(vol, p), p, self._rng,
+                         max_trials=p.init_max_trials, predicted_direction=k0,
+                         max_angle_deg=p.max_angle_deg, fixed_size=self._voi_count(vol),
+                         model="line" if n == 2 else "curve")  # eqs. (15)-(22)
+            if m.ok and np.linalg.norm(m.tip - ctrl[-1]) > p.voi_margin_mm:
+                # a tip beyond the VOI's end: the profile ran along another structure
+                m = _fail(f"tip jump: {np.linalg.norm(m.tip - ctrl[-1]):.1f} mm from the "
+                          f"predicted tip > voi_margin_mm", m.trials, m.roi_voxels, m.inliers)
+        else:
+            m = _fail("the predicted needle has no length")
+        if not m.ok:  # the needle has vanished (or was missed): coast, then wait for a new one
+            self._misses += 1
+            if self._misses > p.max_coast_volumes:
+                self._kf = None
+            return self._report(frame, Status.LOST, m)
+        self._misses = 0
+        kf.update(self._control_points(m))  # eqs. (12)-(14)
+        ctrl = kf.x[: 3 * n].reshape(n, 3)
+        chord = ctrl[-1] - ctrl[0]
+        norm = float(np.linalg.norm(chord))
+        direction = m.direction if norm == 0 else chord / norm
+        block = self._tip_block()
+        return self._report(frame, Status.TRACKING, m, ctrl[-1], direction,
+                            kf.P[block, block], axis_point=ctrl[0])
+
+    def _insertion_params(self, vol: _Volume) -> InsertionParams:
+        """The detector's parameters for this grid: the candidate set covers
+        ``insertion_candidates_mm3`` whatever the voxel size, and the delta test is left to
+        :meth:`_search_chatelain`, which measures it to the sector's boundary."""
+        p = self.params
+        n = p.insertion.n_candidates
+        if p.insertion_candidates_mm3 is not None:
+            n = _count(p.insertion_candidates_mm3, vol, _MIN_INSERTION_CANDIDATES)
+        n = min(n, int(np.prod(vol.shape)))
+        return replace(p.insertion, n_candidates=int(n), distance_threshold_mm=_NO_LIMIT_MM)
+
+    def _boundary_distance(self, vol: _Volume, point: np.ndarray) -> float:
+        """Distance from a point to the sector's boundary, along the nearest of a fan of rays
+        (the scan-converted sector is the volume whose boundary Chatelain's entry lies on)."""
+        step = 0.5 * float(vol.spacing.min())
+        s = np.arange(0, int(self.params.insertion.distance_threshold_mm / step) + 2) * step
+        pts = point + s[None, :, None] * _RAYS[:, None, :]  # (R, S, 3)
+        inside = vol.sample(vol.sector.view(np.uint8), pts, order=0) > 0
+        first_out = np.where(inside.all(axis=1), len(s) - 1, np.argmin(inside, axis=1))
+        return float(s[first_out].min())
+
+    def _search_chatelain(self, frame: Frame, vol: _Volume, previous, dt: float):
+        """Chatelain II-B: wait for a localised change, then fit the needle around it.
+
+        The change map is ``|I_t - I_(t-1)|`` (or the change of a learned likelihood). The
+        detector keeps a fixed number of the largest changes (eq. (1)), tests their variance
+        and takes their geometric median (eq. (2)); the median must lie within delta of the
+        boundary of the imaged sector (the detector's own test uses the faces of the array,
+        which a sector volume does not fill). After a detection, the needle is fitted in a
+        ball around the median for ``detection_window`` volumes, and tracking starts once it
+        is visible over ``min_length_mm``.
+        """
+        p = self.params
+        status = self._not_found()
+        reason = "first volume: nothing to compare with"
+        if previous is not None and previous.shape == vol.values.shape:
+            if self._detector is None:
+                self._detector = InsertionDetector(self._insertion_params(vol))
+            detection = self._detector.update_difference(np.abs(vol.values - previous),
+                                                         vol.spacing)  # eqs. (1)-(2)
+            reason = detection.reason
+            if detection.median_mm is not None:
+                median = (vol.origin + detection.median_mm)[::-1]  # array -> point order
+                gap = self._boundary_distance(vol, median)
+                if gap < p.insertion.distance_threshold_mm:  # ||E_t - Med|| < delta
+                    self._pending = (median, p.detection_window)
+                else:
+                    reason = (f"median too far from the sector's boundary: {gap:.1f} mm >= "
+                              f"delta = {p.insertion.distance_threshold_mm} mm")
+        if self._pending is None:
+            return self._report(frame, status, None, reason=reason)
+        median, left = self._pending
+        region = _ball(vol, median, p.init_voi_radius_mm)
+        threshold = _threshold(vol, p)
+        # The change is where the needle moved, at its tip: it orients the needle.
+        m = _measure(vol, region, threshold, p, self._rng, max_trials=p.init_max_trials,
+                     fixed_size=self._voi_count(vol), tip_hint=median)
+        if m.ok:
+            w = median - m.entry
+            off_axis = float(np.linalg.norm(w - (w @ m.direction) * m.direction))
+            if off_axis > p.voi_radius_mm + p.inlier_radius_mm:
+                m = _fail(f"the fitted axis passes {off_axis:.1f} mm from the detected change",
+                          m.trials, m.roi_voxels, m.inliers)
+            elif m.entry_gap_mm > p.entry_margin_mm:
+                m = _fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
+                          f"mm inside the sector", m.trials, m.roi_voxels, m.inliers)
+            elif p.n_control_points == 3:
+                m = _measure(vol, region, threshold, p, self._rng, max_trials=p.init_max_trials,
+                             predicted_direction=m.direction, max_angle_deg=p.max_angle_deg,
+                             fixed_size=self._voi_count(vol), model="curve")
+        if not m.ok:
+            self._pending = (median, left - 1) if left > 1 else None
+            return self._report(frame, status, m)
+        self._pending = None
+        n = p.n_control_points
+        model = chatelain_control_points_model(n, 3, dt=dt, q=p.q_control, r=p.r_control)
+        x = np.r_[self._control_points(m), np.zeros(3 * n)]  # velocities start at zero
+        P = np.diag([p.r_control] * (3 * n) + [p.p0_control_velocity] * (3 * n))
+        self._kf = KalmanFilter(x, P, model.F, model.H, model.Q, model.R)
+        self._misses = 0
+        block = self._tip_block()
+        return self._report(frame, Status.TRACKING, m, m.tip, m.direction,
+                            self._kf.P[block, block])
+
+
+def _block_sector(sector: np.ndarray, f: int) -> np.ndarray:
+    """Sector mask on the block-averaged working grid of the line filter (all of a block)."""
+    if f == 1:
+        return sector
+    pad = [(0, (-n) % f) for n in sector.shape]
+    s = np.pad(sector, pad, mode="constant")
+    shape = []
+    for n in s.shape:
+        shape += [n // f, f]
+    return s.reshape(shape).all(axis=tuple(range(1, 2 * sector.ndim, 2)))
+
+
