@@ -170,6 +170,7 @@ def save_sequence(seq: Sequence, path: str | os.PathLike, overwrite: bool = Fals
                 info.compress_type = zipfile.ZIP_DEFLATED
                 with zf.open(info, "w", force_zip64=True) as f:
                     np.lib.format.write_array(f, np.asanyarray(arrays[k]), allow_pickle=False)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -127,6 +127,7 @@ def export_onnx(net: nn.Module, modality: str, spacing_mm: float, out: str | os.
         if worst > MAX_ABS_DIFF:
             raise ExportError(f"onnxruntime and torch differ by {worst:.2e} > {MAX_ABS_DIFF:g}; "
                               f"{out} not written")
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; a model is for everyone to read
         os.replace(tmp, out)
     finally:
         if os.path.exists(tmp):

@@ -45,8 +45,8 @@ DEFAULTS = {
                          data=DataConfig(modality="axial", spacing_mm=0.3, crop=64,
                                          batch_size=16, frames_per_world=40,
                                          crops_per_frame=2, shuffle_buffer=192)),
-    "volume": TrainConfig(modality="volume", steps=800, lr=4e-3, out_dir="runs/volume",
-                          data=DataConfig(modality="volume", spacing_mm=0.6, crop=32,
+    "volume": TrainConfig(modality="volume", steps=2000, lr=4e-3, out_dir="runs/volume",
+                          data=DataConfig(modality="volume", spacing_mm=0.5, crop=40,
                                           batch_size=4, frames_per_world=8, val_frames=24,
                                           crops_per_frame=3)),
 }
@@ -102,12 +102,15 @@ def train(config: TrainConfig) -> dict:
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", ".*does not have many workers.*")
         warnings.filterwarnings("ignore", ".*IterableDataset.*")
+        dm.setup()
+        initial = trainer.validate(module, dataloaders=dm.val_dataloader(), verbose=False)
         trainer.fit(module, datamodule=dm)
         metrics = {k: float(v) for k, v in trainer.validate(module, datamodule=dm,
                                                             verbose=False)[0].items()}
     final = out / "model.ckpt"
     trainer.save_checkpoint(final)
-    metrics.update({"train_seconds": time.time() - t0, "steps": config.steps,
+    metrics.update({"val_loss_initial": float(initial[0]["val/loss"]),
+                    "train_seconds": time.time() - t0, "steps": config.steps,
                     "parameters": count_parameters(net), "checkpoint": str(final),
                     "loss_first": float(np.mean(history[:20])) if history else float("nan"),
                     "loss_last": float(np.mean(history[-20:])) if history else float("nan")})

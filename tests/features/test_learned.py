@@ -53,3 +53,39 @@ def test_bad_models_are_named(models, tmp_path):
         LearnedFeatures(bad)
     with pytest.raises(ModelError, match="is a 'volume' model, not 'inplane'"):
         LearnedFeatures(models / "v.onnx", "inplane")
+
+
+@pytest.mark.parametrize("modality", ["inplane", "axial", "volume"])
+def test_shipped_model_finds_the_needle(modality):
+    """Each shipped model puts its maximum on the needle of a seeded high-contrast frame."""
+    from needlenet.features import learned_features
+    from needlenet.features._learned import shipped_model_path
+
+    try:
+        shipped_model_path(modality)
+    except ModelError:
+        pytest.skip(f"no shipped {modality} model in this checkout")
+    src = learned_features(modality)
+    if modality == "inplane":
+        seq = synth.generate("inplane", seed=40_000_001, frames=1, start_length_mm=25.0,
+                             angle_deg=40.0, background="homogeneous",
+                             imaging_overrides={"tissue_gray": 50.0}, cr=2.0)
+    elif modality == "axial":
+        seq = synth.generate("axial", seed=40_000_002, frames=6, background="homogeneous",
+                             cr=2.2)
+    else:
+        seq = synth.generate("volume", seed=40_000_003, frames=1, output_size=96, cr=4.0,
+                             alpha_deg=30.0, background="homogeneous", start_length_mm=20.0)
+    i = seq.n_frames - 1
+    g = seq.grid()
+    lk = src.likelihood(Frame(seq.images[i], g))
+    # shaft: the maximum lies within 1 mm of the labelled centreline
+    peak = np.array(np.unravel_index(int(np.argmax(lk.shaft)), g.shape), float)
+    p = g.index_to_points(peak)
+    if seq.ndim == 2:
+        p = np.array([p[0], 0.0, p[1]])
+    cl = seq.centerline_mm[i]
+    assert np.min(np.linalg.norm(cl - p, axis=1)) < 1.0
+    if modality != "axial":  # the tip channel: its maximum within 1 mm of the labelled tip
+        tp = np.array(np.unravel_index(int(np.argmax(lk.tip)), g.shape), float)
+        assert np.linalg.norm(g.index_to_points(tp) - seq.tip_mm[i]) < 1.0

@@ -58,11 +58,12 @@ def test_sample_crop_is_a_multiple_and_normalised():
 def test_short_training_lowers_the_loss(tmp_path):
     from training.train import config_for, train
 
-    cfg = config_for("inplane", steps=40, val_every=40, out_dir=str(tmp_path), crop=48,
-                     batch_size=6, frames_per_world=8, num_workers=0, val_frames=4,
-                     shuffle_buffer=24, lr=1e-2)
+    cfg = config_for("inplane", steps=20, val_every=20, out_dir=str(tmp_path), crop=48,
+                     batch_size=6, frames_per_world=8, num_workers=0, val_frames=6,
+                     shuffle_buffer=24, lr=1e-2, verbose=False)
     m = train(cfg)
-    assert m["loss_last"] < m["loss_first"]
+    # the same held-out frames, before and after 20 steps
+    assert m["val/loss"] < 0.9 * m["val_loss_initial"]
     assert (tmp_path / "model.ckpt").exists() and (tmp_path / "metrics.json").exists()
 
 
