@@ -63,12 +63,13 @@ def run_inplane(quick: bool, methods=None, log=print) -> dict:
     combos = [(a, s) for a in (35.0, 45.0) for s in (5.0, 10.0, 15.0)]
     reps = 1 if quick else 3
     frames = 30 if quick else None
-    seqs = []
+    seqs, angles = [], []
     k = 0
     for a, s in combos:
         for _ in range(reps):
             seqs.append(synth.generate("inplane", seed=SEED0 + k, frames=frames, angle_deg=a,
                                        speed_mm_s=s, background="inhomogeneous"))
+            angles.append(a)
             k += 1
     methods = methods or (["kf+f", "om", "kf", "kfv+f"] if quick else list(MATHIASSEN_NORM_E))
     rows = []
@@ -76,7 +77,9 @@ def run_inplane(quick: bool, methods=None, log=print) -> dict:
         for m in methods:
             res, lat = [], []
             for i, seq in enumerate(seqs):
-                tr = make_tracker("inplane", m, kind, seed=i)
+                # the protocol's insertion angle is known to the tracker, as in Mathiassen
+                # III-C (both OM and DF search +-5 degrees around it)
+                tr = make_tracker("inplane", m, kind, seed=i, expected_angle_deg=angles[i])
                 est = tr.run(seq)
                 res.append(evaluate("inplane", est, seq))
                 lat += [e.latency_ms for e in est]
