@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ._machine import machine_description
 
-SUITES = ("synth", "models", "inplane", "axial")
+SUITES = ("synth", "models", "inplane", "axial", "volume")
 
 
 def run_suite(name: str, quick: bool = False, json_out: str | Path | None = None,
@@ -19,7 +19,7 @@ def run_suite(name: str, quick: bool = False, json_out: str | Path | None = None
         from . import _synth as mod
     elif name == "models":
         from . import _models as mod
-    if name in ("inplane", "axial"):
+    if name in ("inplane", "axial", "volume"):
         from . import _trackers as tr
 
         result = getattr(tr, f"run_{name}")(quick=quick, log=log)

@@ -177,3 +177,96 @@ def markdown_axial(result: dict, machine: dict) -> str:
                      f" | {r['shape_error_mm2']:.1f} | {p[0]} ± {p[1]} / {p[2]} ± {p[3]} | "
                      f"{r['latency_median_ms']:.2f} |")
     return "\n".join(lines)
+
+
+# Zhao 2013 Table 3: failure rate (%) of ROI-RK by threshold (rows) and CR (columns)
+ZHAO_TABLE_3 = {
+    60: {2.0: 72, 2.5: 4, 3.0: 6, 3.5: 4}, 70: {2.0: 100, 2.5: 48, 3.0: 0, 3.5: 0},
+    80: {2.0: None, 2.5: 100, 3.0: 0, 3.5: 0}, 90: {2.0: None, 2.5: None, 3.0: 58, 3.5: 0},
+    100: {2.0: None, 2.5: None, 3.0: 100, 3.5: 2},
+}
+# Zhao 2013 Table 2: improvement (%) of the STD of ROI-RK over RANSAC, per alpha (x, y, z tip)
+ZHAO_TABLE_2 = {0: (90, 13, 70), 30: (91, 76, 70), 60: (85, 88, 86), 90: (31, 92, 87)}
+
+
+def run_volume(quick: bool, log=print) -> dict:
+    """Zhao 2013: Table 2 (alpha 0/30/60/90, CR 4.7: STD of the tip error, ROI-RK vs RANSAC)
+    and Table 3 (ROI-RK failure rate over CR x threshold), plus Chatelain's method, with
+    classical and learned features. Headline: ``failure_rate``."""
+    from ..eval import evaluate
+    from ..trackers._volume import VolumeTrackerParams
+
+    frames = 10 if quick else 20
+    size = 96 if quick else 128
+    rows = []
+    kinds = _feature_kinds("volume", log)
+    # Table 2
+    for alpha in (0.0, 30.0, 60.0, 90.0):
+        seq = synth.generate("volume", seed=SEED0 + int(alpha), frames=frames, alpha_deg=alpha,
+                             cr=4.7, output_size=size)
+        for kind in kinds:
+            for m in ("ransac", "roi-rk", "chatelain"):
+                est = make_tracker("volume", m, kind, rng=0).run(seq)
+                ev = evaluate("volume", est, seq)
+                s = ev["summary"]
+                rows.append({"suite": "volume", "table": 2, "tracker": "volume", "method": m,
+                             "features": kind, "alpha_deg": alpha, "cr": 4.7,
+                             "failure_rate": s.get("failure_rate"),
+                             "tip_std_xyz_mm": [s.get(f"tip_error_{a}_std") for a in "xyz"],
+                             "tip_error_median_mm": s.get("tip_error_median"),
+                             "frames_per_s": s.get("frames_per_s"),
+                             "latency_p99_ms": s.get("latency_p99_ms"), "frames": frames})
+                log(f"  volume alpha {alpha:.0f} {m:9s} {kind:9s} failure "
+                    f"{s.get('failure_rate'):.2f} median tip {s.get('tip_error_median'):.2f}")
+    # Table 3
+    for cr in (2.0, 2.5, 3.0, 3.5):
+        seq = synth.generate("volume", seed=SEED0 + 100 + int(cr * 10), frames=frames,
+                             alpha_deg=0.0, cr=cr, output_size=size)
+        for kind in kinds:
+            thresholds = (60, 70, 80, 90, 100) if kind == "classical" else (None,)
+            for thr in thresholds:
+                params = VolumeTrackerParams(intensity_threshold=thr)
+                est = make_tracker("volume", "roi-rk", kind, rng=0, params=params).run(seq)
+                s = evaluate("volume", est, seq)["summary"]
+                rows.append({"suite": "volume", "table": 3, "tracker": "volume",
+                             "method": "roi-rk", "features": kind, "cr": cr,
+                             "threshold": thr, "failure_rate": s.get("failure_rate"),
+                             "paper_failure_pct": ZHAO_TABLE_3.get(thr, {}).get(cr)
+                             if thr else None, "frames": frames})
+                log(f"  volume CR {cr} threshold {thr} {kind}: failure {s.get('failure_rate'):.2f}")
+    return {"rows": rows}
+
+
+def markdown_volume(result: dict, machine: dict) -> str:
+    lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
+             "Zhao Table 2 (CR 4.7): failure rate and STD of the tip error (x, y, z mm)", "",
+             "| alpha | method | features | failure rate | tip STD x, y, z (mm) | "
+             "median tip error (mm) | volumes/s |", "|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        if r.get("table") != 2:
+            continue
+        std = ", ".join("-" if v is None or not np.isfinite(v) else f"{v:.2f}"
+                        for v in r["tip_std_xyz_mm"])
+        med = r["tip_error_median_mm"]
+        lines.append(f"| {r['alpha_deg']:.0f} | {r['method']} | {r['features']} | "
+                     f"{r['failure_rate']:.2f} | {std} | "
+                     f"{'-' if med is None or not np.isfinite(med) else f'{med:.2f}'} | "
+                     f"{r['frames_per_s']:.0f} |")
+    lines += ["", "Zhao Table 3: ROI-RK failure rate by threshold and CR (paper's % in brackets)",
+              "", "| threshold | features | CR 2.0 | CR 2.5 | CR 3.0 | CR 3.5 |",
+              "|---|---|---|---|---|---|"]
+    t3 = [r for r in result["rows"] if r.get("table") == 3]
+    keys = sorted({(r["features"], r["threshold"] or 0) for r in t3}, key=lambda k: (k[0], k[1]))
+    for kind, thr in keys:
+        cells = []
+        for cr in (2.0, 2.5, 3.0, 3.5):
+            r = next((x for x in t3 if x["features"] == kind and (x["threshold"] or 0) == thr
+                      and x["cr"] == cr), None)
+            if r is None:
+                cells.append("-")
+                continue
+            p = r.get("paper_failure_pct")
+            cells.append(f"{100 * r['failure_rate']:.0f}%" + (f" ({p}%)" if p is not None
+                                                             else ""))
+        lines.append(f"| {thr or 'likelihood'} | {kind} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)

@@ -110,6 +110,9 @@ class VolumeTrackerParams:
     threshold_percentile : float
         T_I of eq. (B1): "99% of the voxels are from the background", taken over the imaged
         sector only (voxels outside the sector are 0 and are not tissue).
+    intensity_threshold : float or None
+        A fixed T_I in gray levels (0-255) instead of the percentile, as Zhao's Table 3 varies
+        it from 60 to 100 (intensity features only).
     percentile_stride : int
         T_I is estimated on every ``stride``-th voxel per axis (1/8 of them for 2): a
         percentile over ~10^5 voxels, at a fraction of the cost. 1 uses every voxel.
@@ -230,6 +233,7 @@ class VolumeTrackerParams:
     """
 
     threshold_percentile: float = 99.0
+    intensity_threshold: float | None = None  # Zhao Table 3: a fixed gray level, 0-255
     percentile_stride: int = 2
     inlier_radius_mm: float = 0.75
     min_sample_distance_mm: float = 2.0
@@ -362,7 +366,10 @@ def _count(volume_mm3: float, vol: _Volume, minimum: int) -> int:
 
 
 def _threshold(vol: _Volume, p: VolumeTrackerParams) -> float:
-    """T_I of eq. (B1): the ``threshold_percentile`` of the feature over the sector."""
+    """T_I of eq. (B1): the ``threshold_percentile`` of the feature over the sector, or the
+    fixed gray level ``intensity_threshold`` (Zhao Table 3) on [0, 1] features."""
+    if p.intensity_threshold is not None:
+        return float(p.intensity_threshold) / 255.0
     s = p.percentile_stride
     sub = vol.values[::s, ::s, ::s][vol.sector[::s, ::s, ::s]]
     if sub.size == 0:
