@@ -9,7 +9,14 @@ Read it as world -> probe -> scanner -> sequence:
   papers and the ``.npz`` sequence file.
 """
 
-from ._geometry import Grid, apply_transform, invert_rigid, rigid_transform, rotation_matrix
+from ._geometry import (
+    Grid,
+    apply_transform,
+    distance_to_polyline,
+    invert_rigid,
+    rigid_transform,
+    rotation_matrix,
+)
 from ._preview import preview_image, save_preview
 from ._probe import MatrixProbe, PlaneProbe, SectorProbe
 from ._render import Trajectory, contrast_ratio, render_sequence, tube_indices
@@ -45,7 +52,7 @@ __all__ = [
     "NeedlePath", "NeedleSpec", "PlaneProbe", "RAYLEIGH_LOG_STD_DB", "RAYLEIGH_SNR",
     "SCENARIOS", "Scanner", "ScatteringMap", "SectorProbe", "Sequence", "SequenceFileError",
     "Tissue", "Trajectory", "World", "apply_transform", "contrast_ratio", "describe",
-    "envelope_snr", "generate", "invert_rigid", "load_sequence", "log_compress", "log_std_db",
+    "distance_to_polyline", "envelope_snr", "generate", "invert_rigid", "load_sequence", "log_compress", "log_std_db",
     "needle_radius_mm", "preview_image", "random_scattering_map", "render_sequence",
     "rigid_transform", "rotation_matrix", "save_preview", "save_sequence", "scenario_params",
     "speckle_fwhm", "tube_indices", "validate_sequence",

@@ -14,6 +14,7 @@ import numpy as np
 
 __all__ = [
     "Grid",
+    "distance_to_polyline",
     "rotation_matrix",
     "rigid_transform",
     "invert_rigid",
@@ -135,3 +136,19 @@ def apply_transform(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a 4x4 transform to ``(..., 3)`` points."""
     p = np.asarray(points)
     return p @ T[:3, :3].T + T[:3, 3]
+
+
+def distance_to_polyline(points: np.ndarray, polyline: np.ndarray, chunk: int = 8192) -> np.ndarray:
+    """Distance of points (N, D) to a polyline (K, D), vectorised over points and segments."""
+    pts = np.asarray(points, float)
+    poly = np.asarray(polyline, float)
+    if len(poly) == 1:
+        return np.linalg.norm(pts - poly[0], axis=1)
+    a, ab = poly[:-1], np.diff(poly, axis=0)
+    denom = np.maximum((ab * ab).sum(1), 1e-12)
+    out = np.empty(len(pts))
+    for s in range(0, len(pts), chunk):
+        ap = pts[s:s + chunk, None, :] - a[None]
+        t = np.clip(np.einsum("nkd,kd->nk", ap, ab) / denom, 0.0, 1.0)
+        out[s:s + chunk] = np.linalg.norm(ap - t[..., None] * ab[None], axis=-1).min(axis=1)
+    return out

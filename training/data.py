@@ -120,20 +120,6 @@ def randomize(modality: str, rng: np.random.Generator) -> tuple[str, dict]:
     raise ValueError(f"unknown modality {modality!r}")
 
 
-def _distance_to_polyline(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Distance (mm) of points (N, 3) to a polyline (K, 3), vectorised over N and K."""
-    a, b = poly[:-1], poly[1:]
-    ab = b - a
-    out = np.full(len(pts), np.inf)
-    for s in range(0, len(pts), 8192):
-        p = pts[s:s + 8192]
-        ap = p[:, None, :] - a[None]
-        t = np.clip(np.einsum("nkd,kd->nk", ap, ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
-        d = np.linalg.norm(ap - t[..., None] * ab[None], axis=-1)
-        out[s:s + 8192] = d.min(axis=1)
-    return out
-
-
 def make_targets(seq, i: int, grid: synth.Grid) -> np.ndarray:
     """(2, *grid.shape) float32 targets on ``grid`` (the network's output grid) for frame i."""
     radius = float(seq.meta.get("needle", {}).get("radius_mm", 0.5))
@@ -149,7 +135,7 @@ def make_targets(seq, i: int, grid: synth.Grid) -> np.ndarray:
     length = float(np.linalg.norm(np.diff(cl, axis=0), axis=1).sum())
     if length < 0.2:  # the needle has not entered the tissue
         return out
-    d = _distance_to_polyline(pts, cl)
+    d = synth.distance_to_polyline(pts, cl)
     out[0] = np.exp(-0.5 * (d / sigma_shaft) ** 2).reshape(grid.shape)
     tip3 = seq.tip_3d_mm[i] if seq.tip_3d_mm is not None else seq.tip_mm[i]
     dt = np.linalg.norm(pts - np.asarray(tip3, float)[None], axis=1)

@@ -53,15 +53,7 @@ def _distances(seq, i, grid):
         pts = np.stack([axes[1].ravel(), np.zeros(axes[0].size), axes[0].ravel()], -1)
     else:
         pts = np.stack([axes[2].ravel(), axes[1].ravel(), axes[0].ravel()], -1)
-    cl = np.asarray(seq.centerline_mm[i], float)
-    a, b = cl[:-1], cl[1:]
-    ab = b - a
-    d = np.full(len(pts), np.inf)
-    for s in range(0, len(pts), 8192):
-        p = pts[s:s + 8192]
-        ap = p[:, None, :] - a[None]
-        t = np.clip(np.einsum("nkd,kd->nk", ap, ab) / np.maximum((ab * ab).sum(1), 1e-12), 0, 1)
-        d[s:s + 8192] = np.linalg.norm(ap - t[..., None] * ab[None], axis=-1).min(axis=1)
+    d = synth.distance_to_polyline(pts, np.asarray(seq.centerline_mm[i], float))
     return d.reshape(grid.shape)
 
 

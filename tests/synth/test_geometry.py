@@ -45,3 +45,9 @@ def test_sector_probe_geometry():
     inside = out > 0
     assert inside.mean() > 0.3
     assert np.allclose(out[inside], 1.0, atol=1e-5)  # trilinear interpolation of ones is one
+
+
+def test_distance_to_polyline_by_hand():
+    poly = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [10.0, 10.0, 0.0]])
+    pts = np.array([[5.0, 3.0, 0.0], [12.0, 5.0, 0.0], [-3.0, 4.0, 0.0], [10.0, 0.0, 2.0]])
+    assert np.allclose(synth.distance_to_polyline(pts, poly), [3.0, 2.0, 5.0, 2.0])
