@@ -445,6 +445,16 @@ class Scanner:
         if len(pts) == 0:
             return None
         r = spec.radius_mm
+        # only the part of the shaft that can reach the image (PSF, reverberation and
+        # shadow margins included) is rendered: a long needle costs no more than the image
+        idx = probe.to_beam_index(pts)
+        margin = 8.0 + (spec.reverb_count + 2) * (spec.reverb_spacing_mm or r) / min(
+            float(np.min(s)) for s in self._px)
+        near = np.all((idx >= -margin) & (idx <= np.asarray(shape) - 1 + margin), axis=1)
+        if not np.any(near):
+            return None
+        keep_tip = bool(near[-1])
+        pts, tan = pts[near], tan[near]
         b = probe.beam_direction(pts)
         bu = np.einsum("nd,nd->n", b, tan)
         nb = b - bu[:, None] * tan
@@ -479,7 +489,7 @@ class Scanner:
         rev_pts = (wall[None, :, :] + (k[:, None, None] * spacing) * b[None]).reshape(-1, 3)
         rev_amp = ((spec.reverb_decay ** k)[:, None] * strength[None, :]).reshape(-1)
         # the bevel: a bright echo at the tip
-        tip_amp = spec.tip_gain * spec.echo * norm[-1] * w_e[-1]
+        tip_amp = spec.tip_gain * spec.echo * norm[-1] * w_e[-1] if keep_tip else 0.0
         all_pts = np.concatenate([rev_pts, wall[-1:]])
         all_amp = np.concatenate([rev_amp, [tip_amp]]).astype(np.complex64)
         keep = all_amp.real > 1e-6
