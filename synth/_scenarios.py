@@ -35,7 +35,7 @@ BACKGROUNDS = ("homogeneous", "inhomogeneous")
 
 
 def random_scattering_map(rng: np.random.Generator, lo, hi, background: str,
-                          plane_bias: bool = True) -> ScatteringMap:
+                          plane_bias: bool = True, distractors: bool = True) -> ScatteringMap:
     """An inhomogeneous scattering map over the box lo-hi (tissue frame), or a homogeneous one.
 
     Smooth log-normal inhomogeneity, interfaces between layers, line-like structures, anechoic
@@ -73,6 +73,8 @@ def random_scattering_map(rng: np.random.Generator, lo, hi, background: str,
     b = a + d * length[:, None]
     radius = np.concatenate([rng.uniform(0.2, 0.6, n_line), rng.uniform(0.25, 0.45, n_dist)])
     gain = np.concatenate([rng.uniform(1.8, 3.5, n_line), rng.uniform(5.0, 9.0, n_dist)])
+    if not distractors:  # the same draws (a seed gives the same tissue), without the needle-like
+        gain[n_line:] = 1.0  # bright lines
     n_cyst = int(rng.integers(0, 3))
     return ScatteringMap(
         smooth_sigma=float(rng.uniform(0.2, 0.45)), wave_vectors=wave_vectors,
@@ -111,6 +113,7 @@ class _Base:
     # randomises the imaging through these
     imaging_overrides: dict = field(default_factory=dict)
     needle_overrides: dict = field(default_factory=dict)
+    distractors: bool = True  # bright needle-like lines in an inhomogeneous background
 
     modality = "inplane"
     paper = ""
@@ -212,7 +215,8 @@ class InplaneScenario(_Base):
         imaging = p.imaging()
         dens = imaging.scatterer_density(probe.range_of_rows())
         lo, hi = [-p.width_mm / 2, -4, 0], [p.width_mm / 2, 4, p.depth_mm]
-        smap = random_scattering_map(np.random.default_rng(d["map_rng"]), lo, hi, p.background)
+        smap = random_scattering_map(np.random.default_rng(d["map_rng"]), lo, hi, p.background,
+                                     distractors=p.distractors)
         th = np.deg2rad(d["angle_deg"])
         oop = np.deg2rad(p.out_of_plane_deg)
         # enters at the skin (z = 0) right of the image and goes down-left
@@ -329,7 +333,7 @@ class VolumeScenario(_Base):
         lo = np.array(g.index_to_points(np.zeros(3)))
         hi = np.array(g.index_to_points(np.asarray(g.shape, float) - 1))
         smap = random_scattering_map(np.random.default_rng(d["map_rng"]), lo, hi, p.background,
-                                     plane_bias=False)
+                                     plane_bias=False, distractors=p.distractors)
         u = self._direction(d["alpha_deg"])
         entry = _sector_entry(probe, u, p.stop_length_mm, np.asarray(d["centre_jitter_mm"]))
         path = NeedlePath(entry=entry, direction=u)
@@ -386,7 +390,7 @@ class VolumeMotionScenario(VolumeScenario):
         lo = np.array(g.index_to_points(np.zeros(3))) - 10
         hi = np.array(g.index_to_points(np.asarray(g.shape, float) - 1)) + 10
         smap = random_scattering_map(np.random.default_rng(d["map_rng"]), lo, hi, p.background,
-                                     plane_bias=False)
+                                     plane_bias=False, distractors=p.distractors)
         az, el = np.deg2rad(d["azimuth_deg"]), np.deg2rad(d["elevation_deg"])
         u = np.array([d["side"] * np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         entry = _sector_entry(probe, u, p.insert_mm, np.asarray(d["centre_jitter_mm"]))
@@ -456,7 +460,7 @@ class AxialScenario(_Base):
         lo = [-p.width_mm / 2, -5, 0]
         hi = [p.width_mm / 2, p.insertion_mm + 5, p.depth_mm]
         smap = random_scattering_map(np.random.default_rng(d["map_rng"]), lo, hi, p.background,
-                                     plane_bias=False)
+                                     plane_bias=False, distractors=p.distractors)
         phi = np.deg2rad(d["bend_phi_deg"])
         # needle along +y (the probe's elevation): the probe is stepped along it
         entry = np.array([d["lateral_mm"], 0.0, p.needle_depth_mm])
@@ -526,7 +530,7 @@ class ServoScenario(_Base):
         lo = [-10, -p.width_mm / 2 - 5, -p.tip_depth_mm]
         hi = [s[-1] + 10, p.width_mm / 2 + 20, p.depth_mm]
         smap = random_scattering_map(np.random.default_rng(d["map_rng"]), lo, hi, p.background,
-                                     plane_bias=False)
+                                     plane_bias=False, distractors=p.distractors)
         # tissue coordinates = world; the world origin is the tip's start, Z down
         world = World(Tissue(dens, d["tissue_seed"], smap), path, p.needle_spec(None))
         tip = path.point_at(s)
