@@ -620,7 +620,15 @@ def describe() -> str:
         doc = " ".join((cls.__doc__ or "").split())
         lines.append(f"{name}  [{cls.modality}]  {doc}")
         for f in fields(cls):
-            default = f.default if f.default is not dataclasses.MISSING else field
-            lines.append(f"    --param {f.name}={default}")
+            if f.default is not dataclasses.MISSING:
+                default = f.default
+            elif f.default_factory is not dataclasses.MISSING:
+                default = f.default_factory()
+            else:
+                default = "(required)"
+            if isinstance(default, dict):
+                lines.append(f"    {f.name}={default} (Python API: a dict of overrides)")
+            else:
+                lines.append(f"    --param {f.name}={default}")
         lines.append("")
     return "\n".join(lines)
