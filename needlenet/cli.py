@@ -175,7 +175,9 @@ def _cmd_track(args) -> int:
         raise CLIError(f"track: {args.file} holds {seq.modality!r} frames "
                        f"({seq.ndim}D); the {args.tracker!r} tracker needs "
                        f"{'3D volumes' if args.tracker == 'volume' else args.tracker + ' images'}")
-    kw = {"seed": args.seed} if "seed" in cls.__init__.__code__.co_varnames else {}
+    import inspect
+
+    kw = {"seed": args.seed} if "seed" in inspect.signature(cls).parameters else {}
     try:
         tracker = make_tracker(args.tracker, args.method, args.features, args.model, **kw)
     except (ValueError, FileNotFoundError) as exc:

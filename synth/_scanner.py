@@ -19,7 +19,7 @@ it shadows the tissue behind it, and its bevel tip reflects strongly.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -135,12 +135,6 @@ def log_compress(envelope: np.ndarray, params: ImagingParams) -> np.ndarray:
     db = 20.0 * np.log10(np.maximum(envelope, 1e-12)) + 2.507
     gray = params.tissue_gray + db * (255.0 / params.dynamic_range_db)
     return np.clip(np.rint(gray), 0, 255).astype(np.uint8)
-
-
-def _splat(idx: np.ndarray, values: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """Multilinear splat of complex ``values`` at fractional indices (N, D) onto a grid."""
-    v = np.asarray(values)
-    return splat(idx, np.abs(v), np.angle(v), shape)
 
 
 def _blur_axis(arr: np.ndarray, axis: int, sigma_rows: np.ndarray) -> np.ndarray:
@@ -491,8 +485,8 @@ class Scanner:
         # the bevel: a bright echo at the tip
         tip_amp = spec.tip_gain * spec.echo * norm[-1] * w_e[-1] if keep_tip else 0.0
         all_pts = np.concatenate([rev_pts, wall[-1:]])
-        all_amp = np.concatenate([rev_amp, [tip_amp]]).astype(np.complex64)
-        keep = all_amp.real > 1e-6
+        all_amp = np.concatenate([rev_amp, [tip_amp]]).astype(np.float32)
+        keep = all_amp > 1e-6
         sp_idx = probe.to_beam_index(all_pts[keep])
         occ_idx = probe.to_beam_index(pts + r * b)  # behind the shaft: the shadow starts here
         # Work in a crop around the needle (down to the last row: the shadow reaches it).
@@ -505,7 +499,8 @@ class Scanner:
             return None
         crop = tuple(int(v) for v in hi - lo)
         sl = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi, strict=True))
-        iq = _splat(sp_idx - lo, all_amp[keep], crop)
+        # the specular echo is coherent along the shaft: zero phase (no speckle on the needle)
+        iq = splat(sp_idx - lo, all_amp[keep], np.zeros(int(keep.sum())), crop)
         for axis, s in enumerate(self._sig_px):
             iq = _blur_axis(iq, axis, s[sl[0]])
         att = p.two_way_attenuation(self._rows_mm[sl[0]]) ** (1.0 - p.tgc_compensation)
@@ -557,6 +552,3 @@ class Scanner:
         if noise.ndim == 3:
             return cv2.magnitude(noise[..., 0], noise[..., 1])
         return np.sqrt(noise[..., 0] ** 2 + noise[..., 1] ** 2)
-
-    def with_params(self, **changes) -> Scanner:
-        return Scanner(self.probe, replace(self.params, **changes), self.world, self.zhao_mode)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import lightning as L
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, IterableDataset
@@ -235,33 +236,26 @@ def validation_set(cfg: DataConfig, n_frames: int | None = None, cr: float | Non
     return out[:n]
 
 
-class SynthDataModule:
-    """A LightningDataModule over :class:`SynthStream` (imported lazily so this module is
-    importable where Lightning is missing)."""
+class SynthDataModule(L.LightningDataModule):
+    """Training batches from :class:`SynthStream`; validation on :func:`validation_set`."""
 
-    def __new__(cls, cfg: DataConfig):
-        import lightning as L
+    def __init__(self, cfg: DataConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.val = None
 
-        class _DM(L.LightningDataModule):
-            def __init__(self, cfg):
-                super().__init__()
-                self.cfg = cfg
-                self.val = None
+    def setup(self, stage=None):
+        if self.val is None:
+            self.val = validation_set(self.cfg)
 
-            def setup(self, stage=None):
-                if self.val is None:
-                    self.val = validation_set(self.cfg)
+    def train_dataloader(self):
+        kw = {}
+        if self.cfg.num_workers > 0:
+            # spawn, not fork: the parent already runs OpenMP (torch, numba), and forking a
+            # process that did is unsafe
+            kw = {"multiprocessing_context": "spawn", "persistent_workers": True}
+        return DataLoader(SynthStream(self.cfg), batch_size=self.cfg.batch_size,
+                          num_workers=self.cfg.num_workers, **kw)
 
-            def train_dataloader(self):
-                kw = {}
-                if self.cfg.num_workers > 0:
-                    # spawn, not fork: the parent already runs OpenMP (torch, numba), and
-                    # forking a process that did is unsafe
-                    kw = {"multiprocessing_context": "spawn", "persistent_workers": True}
-                return DataLoader(SynthStream(self.cfg), batch_size=self.cfg.batch_size,
-                                  num_workers=self.cfg.num_workers, **kw)
-
-            def val_dataloader(self):
-                return DataLoader(self.val, batch_size=1)
-
-        return _DM(cfg)
+    def val_dataloader(self):
+        return DataLoader(self.val, batch_size=1)

@@ -6,8 +6,9 @@ from __future__ import annotations
 import lightning as L
 import numpy as np
 import torch
-from scipy.stats import rankdata
 from torch import nn
+
+from needlenet.eval._auc import roc_auc
 
 __all__ = ["LikelihoodModule", "likelihood_loss", "shaft_auc", "tip_error_mm",
            "peak_subpixel"]
@@ -28,11 +29,7 @@ def shaft_auc(prob: np.ndarray, target: np.ndarray, pos: float = 0.6, neg: float
     radius of the centreline), negatives where it is below ``neg``; rank-based (Mann-Whitney)."""
     p = np.asarray(prob, float).ravel()
     t = np.asarray(target, float).ravel()
-    P, N = p[t >= pos], p[t <= neg]
-    if len(P) == 0 or len(N) == 0:
-        return float("nan")
-    ranks = rankdata(np.concatenate([P, N]))  # average ranks for ties
-    return float((ranks[: len(P)].sum() - len(P) * (len(P) + 1) / 2) / (len(P) * len(N)))
+    return roc_auc(p[t >= pos], p[t <= neg])
 
 
 def peak_subpixel(m: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ import numpy as np
 
 import synth
 
+from ..eval._auc import roc_auc
 from ..features import Frame
 from ..features._learned import LearnedFeatures, shipped_model_path
 
@@ -35,16 +36,6 @@ LATENCY_SIZES = {
     "axial": [(128, 128)],
     "volume": [(32, 32, 64), (128, 128, 128)],
 }
-
-
-def _auc(p: np.ndarray, pos: np.ndarray, neg: np.ndarray) -> float:
-    from scipy.stats import rankdata
-
-    P, N = p[pos], p[neg]
-    if len(P) == 0 or len(N) == 0:
-        return float("nan")
-    r = rankdata(np.concatenate([P, N]))
-    return float((r[: len(P)].sum() - len(P) * (len(P) + 1) / 2) / (len(P) * len(N)))
 
 
 def _distances(seq, i, grid):
@@ -74,8 +65,7 @@ def evaluate_model(modality: str, source: LearnedFeatures, n_sequences: int, fra
             valid = np.ones(g.shape, bool)
             if seq.ndim == 3:
                 valid = seq.images[i] > 0  # inside the sector
-            aucs.append(_auc(lk.shaft.ravel(), (d <= r).ravel() & valid.ravel(),
-                             (d > 3 * r).ravel() & valid.ravel()))
+            aucs.append(roc_auc(lk.shaft[(d <= r) & valid], lk.shaft[(d > 3 * r) & valid]))
             tip_visible = bool(seq.visible[i]) and (
                 seq.ndim == 3 or modality == "axial"
                 or abs(seq.tip_3d_mm[i][1]) <= r)

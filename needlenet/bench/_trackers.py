@@ -18,6 +18,7 @@ import synth
 
 from ..eval import evaluate
 from ..features._learned import ModelError
+from ..trackers._axial import AxialParams
 from ..trackers._registry import make_tracker
 
 SEED0 = 30_000_000
@@ -123,8 +124,6 @@ def run_axial(quick: bool, log=print) -> dict:
                     seq = synth.generate("axial", seed=SEED0 + int(D) * 10 + k,
                                          rotation_depth_mm=D, insertion_mm=100.0,
                                          background="inhomogeneous")
-                    from ..trackers._axial import AxialParams
-
                     tr = make_tracker("axial", "carriere", kind, seed=k,
                                       params=AxialParams(filter_update=filt))
                     est = tr.run(seq)

@@ -29,7 +29,6 @@ def evaluate(modality: str, estimates, seq) -> dict:
 
         ev = evaluate_volume(estimates, seq)
         summary = dict(ev.summary)
-        summary.setdefault("failure_rate", summary.get("failure_rate"))
         per = {k: np.asarray(getattr(ev, k)).tolist() for k in
                ("tip_error", "axis_error", "alpha_error_deg", "beta_error_deg")}
         out = {"summary": summary, "per_frame": per}

@@ -106,7 +106,6 @@ def frames_from_sequence(seq):
     """Frames of a sequence; a robot's insertion-speed measurement is passed along when the
     sequence's meta records one (``meta['params']['speed_mm_s']``)."""
     grid = seq.grid()
-    speed = None
     params = seq.meta.get("params", {}) if isinstance(seq.meta, dict) else {}
     draw = seq.meta.get("draw", {}) if isinstance(seq.meta, dict) else {}
     speed = draw.get("speed_mm_s", params.get("speed_mm_s"))
