@@ -298,6 +298,14 @@ def _cmd_export(args) -> int:
     return 0
 
 
+# -- servo --------------------------------------------------------------------------------
+
+def _add_servo(sub) -> None:
+    from .servo._cli import add_servo_parser
+
+    add_servo_parser(sub)
+
+
 # -- bench --------------------------------------------------------------------------------
 
 def _add_bench(sub) -> None:
@@ -338,6 +346,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_track(sub)
     _add_train(sub)
     _add_export(sub)
+    _add_servo(sub)
     _add_bench(sub)
     return parser
 
