@@ -309,26 +309,77 @@ def _add_servo(sub) -> None:
 # -- bench --------------------------------------------------------------------------------
 
 def _add_bench(sub) -> None:
+    from .bench import SUITES
+
     p = sub.add_parser("bench", help="run a benchmark suite",
-                       description="Run a benchmark suite on seeded data and report measured "
-                                   "figures with the machine they ran on.")
-    p.add_argument("suite", help="synth")
-    p.add_argument("--quick", action="store_true", help="a shorter run")
-    p.add_argument("--json", dest="json_out", help="write the results as JSON")
+                       description="Run a benchmark suite on seeded data, with classical and "
+                                   "learned features through the same back ends, and report "
+                                   "measured figures with the machine they ran on.")
+    p.add_argument("suite", help=", ".join(SUITES))
+    p.add_argument("--quick", action="store_true",
+                   help="a shorter run (each suite within about two minutes)")
+    p.add_argument("--json", dest="json_out", help="write the rows as JSON (written as they "
+                                                   "finish, so an interrupted run keeps them)")
+    p.add_argument("--report", help="write a report directory: report.md, results.json, plots")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --json file")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --json file or report")
     p.set_defaults(func=_cmd_bench)
 
 
 def _cmd_bench(args) -> int:
-    from .bench import SUITES, run_suite
+    from .bench import SUITES, BenchInterrupted, check_report_dir, run_suite
 
     if args.suite not in SUITES:
         raise CLIError(f"bench: unknown suite {args.suite!r}; available: {', '.join(SUITES)}")
     out = _check_output(args.json_out, ".json", args.overwrite, "--json")
-    result = run_suite(args.suite, quick=args.quick, json_out=out, seed=args.seed)
+    if args.report is not None:
+        try:
+            check_report_dir(args.report, args.overwrite)
+        except ValueError as exc:
+            raise CLIError(str(exc)) from None
+    try:
+        result = run_suite(args.suite, quick=args.quick, json_out=out, seed=args.seed,
+                           report_dir=args.report, overwrite=args.overwrite)
+    except BenchInterrupted as exc:
+        print(f"needlenet: {exc}", file=sys.stderr)
+        return 130
     print()
     print(result["markdown"])
+    for p in (out, result.get("report")):
+        if p:
+            print(f"wrote {p}")
+    return 0
+
+
+# -- demo ---------------------------------------------------------------------------------
+
+def _add_demo(sub) -> None:
+    p = sub.add_parser("demo", help="the main job: simulate, track with classical and learned "
+                                    "features, servo, and write a report",
+                       description="Make a few seeded sequences of each modality, track them "
+                                   "with classical and with learned features (the shipped "
+                                   "ONNX models; no training needed), run a short servo loop, "
+                                   "and write a report with the comparison table, plots and "
+                                   "an overlay animation.")
+    p.add_argument("--out", default="needlenet-demo",
+                   help="report directory (default: needlenet-demo)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--overwrite", action="store_true", help="replace an existing report")
+    p.add_argument("--quiet", action="store_true", help="less progress output")
+    p.set_defaults(func=_cmd_demo)
+
+
+def _cmd_demo(args) -> int:
+    from .bench import check_report_dir
+    from .demo import run_demo
+
+    try:
+        out = check_report_dir(args.out, args.overwrite)
+    except ValueError as exc:
+        raise CLIError(str(exc).replace("--report", "--out")) from None
+    report = run_demo(out, seed=args.seed, quiet=args.quiet)
+    print(f"report: {report}")
     return 0
 
 
@@ -348,6 +399,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_export(sub)
     _add_servo(sub)
     _add_bench(sub)
+    _add_demo(sub)
     return parser
 
 

@@ -103,8 +103,10 @@ def onnx_latency(source: LearnedFeatures, shape, threads: int, repeats: int = 30
             "p99_ms": float(np.percentile(times, 99))}
 
 
-def run(quick: bool, seed: int = 0, log=print) -> dict:
-    rows, lat_rows = [], []
+def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None) -> dict:
+    quick = quick or (tier is not None and tier != "full")
+    rows = [] if rows is None else rows
+    lat_rows = []
     for modality in ("inplane", "axial", "volume"):
         try:
             path = shipped_model_path(modality)

@@ -49,12 +49,13 @@ def _speckle_rows(seed: int) -> list[dict]:
     ]
 
 
-def run(quick: bool, seed: int = 0, log=print) -> dict:
+def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None) -> dict:
+    quick = quick or (tier is not None and tier != "full")
     # warm-up: compile the kernels and touch every code path once
     synth.generate("inplane", seed=seed, frames=2, width_mm=8.0, depth_mm=8.0,
                    start_length_mm=12.0)
     synth.generate("volume", seed=seed, frames=1, output_size=32)
-    rows = []
+    rows = [] if rows is None else rows
     for name, scenario, kw, frames in CASES:
         n = frames[0] if quick else frames[1]
         t: dict = {}

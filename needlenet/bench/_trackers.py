@@ -60,20 +60,42 @@ def _pooled(per_seq: list[dict], key: str) -> np.ndarray:
     return np.concatenate(vals) if vals else np.zeros(0)
 
 
-def run_inplane(quick: bool, methods=None, log=print) -> dict:
+# sizes per tier: "demo" (a few sequences, for ``needlenet demo``), "quick" (each suite within
+# two minutes on a 2-core machine), "full" (the protocol; what README quotes)
+TIERS = ("demo", "quick", "full")
+
+
+def _tier(quick: bool | None, tier: str | None) -> str:
+    if tier is None:
+        return "quick" if quick else "full"
+    if tier not in TIERS:
+        raise ValueError(f"unknown tier {tier!r}; choose one of {TIERS}")
+    return tier
+
+
+def run_inplane(quick: bool = False, methods=None, log=print, rows=None, tier=None,
+                seed: int = 0) -> dict:
+    """Mathiassen 2017 section III-C on synth: 35 and 45 degrees x 5, 10 and 15 mm/s."""
+    tier = _tier(quick, tier)
+    rows = [] if rows is None else rows
     combos = [(a, s) for a in (35.0, 45.0) for s in (5.0, 10.0, 15.0)]
-    reps = 1 if quick else 3
-    frames = 30 if quick else None
+    if tier == "demo":
+        combos = [(35.0, 10.0), (45.0, 15.0)]
+    reps = 3 if tier == "full" else 1
+    frames = {"demo": 40, "quick": 30, "full": None}[tier]
     seqs, angles = [], []
     k = 0
     for a, s in combos:
         for _ in range(reps):
-            seqs.append(synth.generate("inplane", seed=SEED0 + k, frames=frames, angle_deg=a,
-                                       speed_mm_s=s, background="inhomogeneous"))
+            seqs.append(synth.generate("inplane", seed=SEED0 + seed + k, frames=frames,
+                                       angle_deg=a, speed_mm_s=s, background="inhomogeneous"))
             angles.append(a)
             k += 1
-    methods = methods or (["kf+f", "om", "kf", "kfv+f"] if quick else list(MATHIASSEN_NORM_E))
-    rows = []
+    log(f"  inplane: {len(seqs)} sequences, {sum(q.n_frames for q in seqs)} frames")
+    if methods is None:
+        methods = {"demo": ["kf+f"], "quick": ["kf+f", "om", "kf", "kfv+f"],
+                   "full": list(MATHIASSEN_NORM_E)}[tier]
+    traces = {"norm_e_mm": {}, "example": {}}
     for kind in _feature_kinds("inplane", log):
         for m in methods:
             res, lat = [], []
@@ -84,7 +106,10 @@ def run_inplane(quick: bool, methods=None, log=print) -> dict:
                 est = tr.run(seq)
                 res.append(evaluate("inplane", est, seq))
                 lat += [e.latency_ms for e in est]
+                if i == 0:
+                    traces["example"][(m, kind)] = (seq, est, res[-1]["per_frame"]["norm_e_mm"])
             norm = _pooled(res, "norm_e_mm")
+            traces["norm_e_mm"][(m, kind)] = norm
             th = _pooled(res, "abs_e_theta_deg")
             en, ep = _pooled(res, "e_n_mm"), _pooled(res, "e_p_mm")
             lat_a = np.asarray(lat)
@@ -93,7 +118,7 @@ def run_inplane(quick: bool, methods=None, log=print) -> dict:
                 "suite": "inplane", "tracker": "inplane", "method": m, "features": kind,
                 "sequences": len(seqs), "frames": int(sum(s.n_frames for s in seqs)),
                 "frames_evaluated": int(norm.size),
-                "seeds": [SEED0, SEED0 + len(seqs) - 1],
+                "seeds": [SEED0 + seed, SEED0 + seed + len(seqs) - 1],
                 "tip_error_p95_mm": float(np.percentile(norm, 95)) if norm.size else None,
                 "norm_e_mean_mm": float(norm.mean()) if norm.size else None,
                 "norm_e_sd_mm": float(norm.std(ddof=1)) if norm.size > 1 else None,
@@ -108,26 +133,44 @@ def run_inplane(quick: bool, methods=None, log=print) -> dict:
                 "paper_norm_e": paper, "paper_abs_e_theta_deg": MATHIASSEN_ABS_ETHETA.get(m),
             }
             rows.append(row)
-            log(f"  inplane {m:6s} {kind:9s} ||e|| p95 {row['tip_error_p95_mm']:.2f} mm "
+            log(f"  inplane {m:6s} {kind:9s} ||e|| p95 {_fmt(row['tip_error_p95_mm'])} mm "
                 f"(paper {paper[2] if paper else '-'}), {row['frames_per_s']:.0f} frames/s")
-    return {"rows": rows}
+    return {"rows": rows, "traces": traces}
 
 
-def run_axial(quick: bool, log=print) -> dict:
-    rows = []
-    reps = 1 if quick else 3
+def _fmt(v, digits: int = 2) -> str:
+    return "-" if v is None or not np.isfinite(v) else f"{v:.{digits}f}"
+
+
+def run_axial(quick: bool = False, log=print, rows=None, tier=None, seed: int = 0) -> dict:
+    """Carriere 2016 section IV: slices every 0.5 mm along a curved needle with a bevel
+    rotation at D = 60 and 80 mm; Table I (tip prediction and shape errors), Table II (ms)."""
+    tier = _tier(quick, tier)
+    rows = [] if rows is None else rows
+    reps = 3 if tier == "full" else 1
+    depths = (60.0,) if tier == "demo" else (60.0, 80.0)
+    filters = ("paper",) if tier == "demo" else ("paper", "lsq")
+    seqs = {}
+    for D in depths:
+        for k in range(reps):
+            seqs[D, k] = synth.generate("axial", seed=SEED0 + seed + int(D) * 10 + k,
+                                        rotation_depth_mm=D, insertion_mm=100.0,
+                                        background="inhomogeneous")
+    traces = {"tracking_error_mm": {}}
     for kind in _feature_kinds("axial", log):
-        for D in (60.0, 80.0):
-            for filt in ("paper", "lsq"):
+        for D in depths:
+            for filt in filters:
                 res, lat = [], []
                 for k in range(reps):
-                    seq = synth.generate("axial", seed=SEED0 + int(D) * 10 + k,
-                                         rotation_depth_mm=D, insertion_mm=100.0,
-                                         background="inhomogeneous")
+                    seq = seqs[D, k]
                     tr = make_tracker("axial", "carriere", kind, seed=k,
                                       params=AxialParams(filter_update=filt))
                     est = tr.run(seq)
-                    res.append(evaluate("axial", est, seq)["summary"])
+                    ev = evaluate("axial", est, seq)
+                    res.append(ev["summary"])
+                    if k == 0:
+                        traces["tracking_error_mm"][(D, filt, kind)] = np.asarray(
+                            ev["per_frame"]["tracking_error_mm"], float)
                     lat += [e.latency_ms for e in est]
                 tip = np.array([r.get("tip_prediction_error_mm", np.nan) for r in res], float)
                 shape = np.array([r.get("shape_error_mm2", np.nan) for r in res], float)
@@ -136,6 +179,8 @@ def run_axial(quick: bool, log=print) -> dict:
                 row = {
                     "suite": "axial", "tracker": "axial", "method": f"carriere/{filt}",
                     "features": kind, "D_mm": D, "sequences": reps,
+                    "frames": int(sum(seqs[D, k].n_frames for k in range(reps))),
+                    "seeds": [SEED0 + seed + int(D) * 10, SEED0 + seed + int(D) * 10 + reps - 1],
                     "tip_prediction_error_mm": float(np.nanmean(tip)),
                     "tip_prediction_error_sd_mm": float(np.nanstd(tip)),
                     "shape_error_mm2": float(np.nanmean(shape)),
@@ -149,7 +194,7 @@ def run_axial(quick: bool, log=print) -> dict:
                 log(f"  axial D={D:.0f} {filt:5s} {kind:9s} tip "
                     f"{row['tip_prediction_error_mm']:.3f} mm, shape "
                     f"{row['shape_error_mm2']:.1f} mm2, {row['latency_median_ms']:.2f} ms")
-    return {"rows": rows}
+    return {"rows": rows, "traces": traces}
 
 
 def markdown_inplane(result: dict, machine: dict) -> str:
@@ -188,54 +233,70 @@ ZHAO_TABLE_3 = {
 ZHAO_TABLE_2 = {0: (90, 13, 70), 30: (91, 76, 70), 60: (85, 88, 86), 90: (31, 92, 87)}
 
 
-def run_volume(quick: bool, log=print) -> dict:
+def _volume_row(s: dict, seq, seed: int, **kw) -> dict:
+    return {"suite": "volume", "tracker": "volume", **kw,
+            "failure_rate": s.get("failure_rate"),
+            "tip_std_xyz_mm": [s.get(f"tip_error_{a}_std") for a in "xyz"],
+            "tip_error_median_mm": s.get("tip_error_median"),
+            "latency_median_ms": s.get("latency_median_ms"),
+            "latency_p99_ms": s.get("latency_p99_ms"), "frames_per_s": s.get("frames_per_s"),
+            "sequences": 1, "frames": int(seq.n_frames), "seeds": [seed],
+            "shape": list(seq.images.shape[1:])}
+
+
+def run_volume(quick: bool = False, log=print, rows=None, tier=None, seed: int = 0) -> dict:
     """Zhao 2013: Table 2 (alpha 0/30/60/90, CR 4.7: STD of the tip error, ROI-RK vs RANSAC)
     and Table 3 (ROI-RK failure rate over CR x threshold), plus Chatelain's method, with
     classical and learned features. Headline: ``failure_rate``."""
-    from ..eval import evaluate
     from ..trackers._volume import VolumeTrackerParams
 
-    frames = 10 if quick else 20
-    size = 96 if quick else 128
-    rows = []
+    tier = _tier(quick, tier)
+    rows = [] if rows is None else rows
+    frames = {"demo": 8, "quick": 10, "full": 20}[tier]
+    size = {"demo": 80, "quick": 96, "full": 128}[tier]
+    alphas = (0.0,) if tier == "demo" else (0.0, 30.0, 60.0, 90.0)
+    crs = (2.0, 3.0) if tier == "demo" else (2.0, 2.5, 3.0, 3.5)
+    all_thresholds = (60, 80, 100) if tier == "demo" else (60, 70, 80, 90, 100)
     kinds = _feature_kinds("volume", log)
+    traces = {"tip_error_mm": {}}
     # Table 2
-    for alpha in (0.0, 30.0, 60.0, 90.0):
-        seq = synth.generate("volume", seed=SEED0 + int(alpha), frames=frames, alpha_deg=alpha,
-                             cr=4.7, output_size=size)
+    for alpha in alphas:
+        sd = SEED0 + seed + int(alpha)
+        seq = synth.generate("volume", seed=sd, frames=frames, alpha_deg=alpha, cr=4.7,
+                             output_size=size)
         for kind in kinds:
             for m in ("ransac", "roi-rk", "chatelain"):
                 est = make_tracker("volume", m, kind, rng=0).run(seq)
                 ev = evaluate("volume", est, seq)
                 s = ev["summary"]
-                rows.append({"suite": "volume", "table": 2, "tracker": "volume", "method": m,
-                             "features": kind, "alpha_deg": alpha, "cr": 4.7,
-                             "failure_rate": s.get("failure_rate"),
-                             "tip_std_xyz_mm": [s.get(f"tip_error_{a}_std") for a in "xyz"],
-                             "tip_error_median_mm": s.get("tip_error_median"),
-                             "frames_per_s": s.get("frames_per_s"),
-                             "latency_p99_ms": s.get("latency_p99_ms"), "frames": frames})
+                traces["tip_error_mm"][(alpha, m, kind)] = np.asarray(
+                    ev["per_frame"]["tip_error"], float)
+                rows.append(_volume_row(s, seq, sd, table=2, method=m, features=kind,
+                                        alpha_deg=alpha, cr=4.7, threshold=None))
                 log(f"  volume alpha {alpha:.0f} {m:9s} {kind:9s} failure "
-                    f"{s.get('failure_rate'):.2f} median tip {s.get('tip_error_median'):.2f}")
+                    f"{_fmt(s.get('failure_rate'))} median tip {_fmt(s.get('tip_error_median'))}")
     # Table 3
-    for cr in (2.0, 2.5, 3.0, 3.5):
+    for cr in crs:
         # Zhao's breast scattering map has line-like structures but no needle-like bright
         # lines; synth's distractors (as bright as the needle at CR <= 3) are left out here
-        seq = synth.generate("volume", seed=SEED0 + 100 + int(cr * 10), frames=frames,
-                             alpha_deg=0.0, cr=cr, output_size=size, distractors=False)
+        sd = SEED0 + seed + 100 + int(cr * 10)
+        seq = synth.generate("volume", seed=sd, frames=frames, alpha_deg=0.0, cr=cr,
+                             output_size=size, distractors=False)
         for kind in kinds:
-            thresholds = (60, 70, 80, 90, 100) if kind == "classical" else (None,)
+            # the learned source has no intensity threshold: one row, compared with every
+            # classical threshold
+            thresholds = all_thresholds if kind == "classical" else (None,)
             for thr in thresholds:
                 params = VolumeTrackerParams(intensity_threshold=thr)
                 est = make_tracker("volume", "roi-rk", kind, rng=0, params=params).run(seq)
                 s = evaluate("volume", est, seq)["summary"]
-                rows.append({"suite": "volume", "table": 3, "tracker": "volume",
-                             "method": "roi-rk", "features": kind, "cr": cr,
-                             "threshold": thr, "failure_rate": s.get("failure_rate"),
-                             "paper_failure_pct": ZHAO_TABLE_3.get(thr, {}).get(cr)
-                             if thr else None, "frames": frames})
-                log(f"  volume CR {cr} threshold {thr} {kind}: failure {s.get('failure_rate'):.2f}")
-    return {"rows": rows}
+                rows.append(_volume_row(
+                    s, seq, sd, table=3, method="roi-rk", features=kind, alpha_deg=0.0, cr=cr,
+                    threshold=thr,
+                    paper_failure_pct=ZHAO_TABLE_3.get(thr, {}).get(cr) if thr else None))
+                log(f"  volume CR {cr} threshold {thr} {kind}: failure "
+                    f"{_fmt(s.get('failure_rate'))}")
+    return {"rows": rows, "traces": traces}
 
 
 def markdown_volume(result: dict, machine: dict) -> str:
@@ -250,9 +311,8 @@ def markdown_volume(result: dict, machine: dict) -> str:
                         for v in r["tip_std_xyz_mm"])
         med = r["tip_error_median_mm"]
         lines.append(f"| {r['alpha_deg']:.0f} | {r['method']} | {r['features']} | "
-                     f"{r['failure_rate']:.2f} | {std} | "
-                     f"{'-' if med is None or not np.isfinite(med) else f'{med:.2f}'} | "
-                     f"{r['frames_per_s']:.0f} |")
+                     f"{_fmt(r['failure_rate'])} | {std} | {_fmt(med)} | "
+                     f"{_fmt(r['frames_per_s'], 0)} |")
     lines += ["", "Zhao Table 3: ROI-RK failure rate by threshold and CR (paper's % in brackets)",
               "", "| threshold | features | CR 2.0 | CR 2.5 | CR 3.0 | CR 3.5 |",
               "|---|---|---|---|---|---|"]

@@ -56,10 +56,14 @@ def _frame_3d(seq, i, est):
 def overlay_frames(seq, estimates, max_size: int = 320) -> list[np.ndarray]:
     """BGR images of every frame with the estimate (red) and the ground truth (green)."""
     out = []
-    scale = max(1, int(max_size // max(seq.images.shape[1:3])))
+    big = max(seq.images.shape[1:3])
+    scale = max(1, int(max_size // big))
+    shrink = max_size / big if seq.ndim == 2 and big > max_size else 1.0
     for i in range(seq.n_frames):
         est = estimates[i] if estimates is not None else None
         img = _frame_3d(seq, i, est) if seq.ndim == 3 else _frame_2d(seq, i, est, scale)
+        if shrink < 1.0:  # drawn at full size, then averaged down (a smaller file)
+            img = cv2.resize(img, None, fx=shrink, fy=shrink, interpolation=cv2.INTER_AREA)
         status = est.status.value if est is not None else ""
         cv2.putText(img, f"{i:4d} {status}", (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, _YELLOW, 1,
                     cv2.LINE_AA)
@@ -68,10 +72,11 @@ def overlay_frames(seq, estimates, max_size: int = 320) -> list[np.ndarray]:
 
 
 def write_overlay(path: str | Path, seq, estimates, fps: float | None = None,
-                  max_frames: int = 300) -> Path:
-    """Write the overlay as an animated GIF (Pillow) or MP4/AVI (OpenCV), by extension."""
+                  max_frames: int = 300, max_size: int = 320) -> Path:
+    """Write the overlay as an animated GIF (Pillow) or MP4/AVI (OpenCV), by extension;
+    2D frames larger than ``max_size`` pixels are scaled down to it."""
     path = Path(path)
-    frames = overlay_frames(seq, estimates)
+    frames = overlay_frames(seq, estimates, max_size=max_size)
     step = max(1, int(np.ceil(len(frames) / max_frames)))
     frames = frames[::step]
     if fps is None:

@@ -1,0 +1,80 @@
+"""``needlenet bench latency``: per-frame time of every tracker with both feature kinds.
+
+Each tracker runs over a seeded synth sequence at its paper's frame size (Mathiassen's
+500 x 384 in-plane frames at 0.1 mm, Carriere's 128 x 128 axial slices, Zhao's 128^3 volumes);
+the time is the tracker's own per-frame latency (features, back end and bookkeeping, measured
+inside ``Tracker.update`` with ``time.perf_counter``), excluding the simulator. The first frame
+(detection in the whole image, model warm-up) is reported separately from the steady state.
+Headline: ``latency_p99_ms``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+import synth
+
+from ..trackers._registry import make_tracker
+from ._trackers import SEED0, _feature_kinds, _tier
+
+INPLANE_ALL = ("df", "om", "om+f", "kf", "kf+f", "pf", "pf+f", "kfv", "kfv+f", "pfv", "pfv+f")
+
+
+def _cases(tier: str) -> list[tuple]:
+    """(tracker, methods, scenario, generate kwargs)."""
+    inplane_methods = INPLANE_ALL if tier == "full" else ("om", "kf+f", "pf+f")
+    return [
+        ("inplane", inplane_methods, "inplane",
+         {"frames": 60 if tier == "full" else 30, "angle_deg": 35.0, "speed_mm_s": 10.0,
+          "background": "inhomogeneous"}),
+        ("axial", ("carriere",), "axial",
+         {"insertion_mm": 60.0 if tier == "full" else 30.0, "background": "inhomogeneous"}),
+        ("volume", ("ransac", "roi-rk", "chatelain"), "volume",
+         {"frames": 12 if tier == "full" else 6, "cr": 3.0,
+          "output_size": 128 if tier == "full" else 96}),
+    ]
+
+
+def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None) -> dict:
+    tier = _tier(quick, tier)
+    rows = [] if rows is None else rows
+    for tracker, methods, scenario, kw in _cases(tier):
+        sd = SEED0 + seed + 500
+        seq = synth.generate(scenario, seed=sd, **kw)
+        shape = list(seq.images.shape[1:])
+        for kind in _feature_kinds(tracker, log):
+            for m in methods:
+                extra = {"expected_angle_deg": 35.0} if tracker == "inplane" else {}
+                rng_kw = {"rng": 0} if tracker == "volume" else {"seed": 0}
+                tr = make_tracker(tracker, m, kind, **rng_kw, **extra)
+                est = tr.run(seq)
+                lat = np.array([e.latency_ms for e in est], float)
+                steady = lat[1:] if lat.size > 1 else lat
+                row = {
+                    "suite": "latency", "tracker": tracker, "method": m, "features": kind,
+                    "shape": shape, "spacing_mm": [float(v) for v in seq.spacing_mm],
+                    "sequences": 1, "frames": int(seq.n_frames), "seeds": [sd],
+                    "first_frame_ms": float(lat[0]),
+                    "latency_median_ms": float(np.median(steady)),
+                    "latency_p99_ms": float(np.percentile(steady, 99)),
+                    "frames_per_s": float(1000.0 / steady.mean()),
+                }
+                rows.append(row)
+                log(f"  {tracker:7s} {m:9s} {kind:9s} {'x'.join(map(str, shape)):>11s}: "
+                    f"median {row['latency_median_ms']:6.2f} ms, p99 "
+                    f"{row['latency_p99_ms']:6.2f} ms, {row['frames_per_s']:6.0f} frames/s")
+    return {"rows": rows}
+
+
+def markdown(result: dict, machine: dict) -> str:
+    lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
+             "Per-frame latency of the tracker (features + back end; the simulator excluded), "
+             "steady state after the first frame.", "",
+             "| tracker | method | features | frame | first frame (ms) | median (ms) | "
+             "p99 (ms) | frames/s |", "|---|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        lines.append(f"| {r['tracker']} | {r['method']} | {r['features']} | "
+                     f"{'x'.join(map(str, r['shape']))} | {r['first_frame_ms']:.1f} | "
+                     f"{r['latency_median_ms']:.2f} | {r['latency_p99_ms']:.2f} | "
+                     f"{r['frames_per_s']:.0f} |")
+    return "\n".join(lines)

@@ -1,0 +1,111 @@
+"""The benchmark runner: headline keys, the learned-vs-classical verdicts, partial results of
+an interrupted run, report directories and their errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from needlenet.bench import (
+    HEADLINE,
+    BenchInterrupted,
+    _runner,
+    check_report_dir,
+    compare,
+    run_suite,
+)
+from needlenet.cli import main
+
+
+def _row(method, features, value, **kw):
+    return {"method": method, "features": features, "tip_error_p95_mm": value, **kw}
+
+
+def test_compare_verdicts():
+    rows = [_row("kf+f", "classical", 0.8), _row("kf+f", "learned", 0.6),
+            _row("om", "classical", 1.0), _row("om", "learned", 2.0),
+            _row("kf", "classical", 0.5), _row("kf", "learned", 0.5)]
+    v = {c["method"]: c["verdict"] for c in compare("inplane", rows)}
+    assert v == {"kf+f": "learned better", "om": "classical better", "kf": "tie"}
+
+
+def test_compare_against_every_threshold():
+    # Zhao's Table 3: several classical thresholds per CR, one learned row
+    rows = [{"table": 3, "method": "roi-rk", "alpha_deg": 0.0, "cr": 2.0, "features": "classical",
+             "threshold": t, "failure_rate": f} for t, f in ((60, 0.7), (80, 1.0), (100, 1.0))]
+    rows.append({"table": 3, "method": "roi-rk", "alpha_deg": 0.0, "cr": 2.0,
+                 "features": "learned", "threshold": None, "failure_rate": 0.8})
+    (c,) = compare("volume", rows)
+    assert (c["classical_best"], c["classical_worst"], c["classical_settings"]) == (0.7, 1.0, 3)
+    assert c["verdict"] == "learned within the classical range"
+    rows[-1]["failure_rate"] = 0.1
+    assert compare("volume", rows)[0]["verdict"] == "learned better"
+
+
+class _FakeSuite:
+    """Two rows, then Ctrl-C."""
+
+    @staticmethod
+    def run(tier, seed, log, rows):
+        rows.append({"method": "kf+f", "features": "classical", "tip_error_p95_mm": 0.5})
+        rows.append({"method": "kf+f", "features": "learned"})  # headline missing: filled None
+        raise KeyboardInterrupt
+
+    @staticmethod
+    def markdown(result, machine):
+        return "| method |\n|---|\n" + "\n".join(f"| {r['method']} |" for r in result["rows"])
+
+
+def test_interrupted_run_keeps_its_rows(tmp_path, monkeypatch):
+    monkeypatch.setattr(_runner, "_suite_module", lambda name: _FakeSuite)
+    out = tmp_path / "rows.json"
+    with pytest.raises(BenchInterrupted, match="kept 2 finished rows"):
+        run_suite("inplane", json_out=out, report_dir=tmp_path / "rep", log=lambda m: None)
+    for path in (out, tmp_path / "rep" / "results.json"):
+        data = json.loads(path.read_text())
+        assert data["complete"] is False and data["interrupted"] is True
+        assert [r["features"] for r in data["rows"]] == ["classical", "learned"]
+        assert all(HEADLINE["inplane"] in r and r["suite"] == "inplane" and r["machine"]
+                   for r in data["rows"])
+    assert "interrupted" in (tmp_path / "rep" / "report.md").read_text()
+
+
+def test_report_dir_checks(tmp_path):
+    f = tmp_path / "file"
+    f.write_text("x")
+    with pytest.raises(ValueError, match="not a directory"):
+        check_report_dir(f, overwrite=False)
+    with pytest.raises(ValueError, match="does not exist"):
+        check_report_dir(tmp_path / "no" / "such" / "dir", overwrite=False)
+    d = tmp_path / "rep"
+    d.mkdir()
+    (d / "report.md").write_text("mine")
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        check_report_dir(d, overwrite=False)
+    assert check_report_dir(d, overwrite=True) == d
+
+
+def test_cli_bad_suite_and_report(tmp_path, capsys):
+    assert main(["bench", "nosuch"]) == 2
+    assert "unknown suite 'nosuch'" in capsys.readouterr().err
+    assert main(["bench", "inplane", "--report", str(tmp_path / "a" / "b")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    (tmp_path / "taken").write_text("x")
+    assert main(["demo", "--out", str(tmp_path / "taken")]) == 2
+    assert "--out" in capsys.readouterr().err
+
+
+def test_inplane_demo_tier_report(tmp_path):
+    res = run_suite("inplane", tier="demo", report_dir=tmp_path / "rep", log=lambda m: None)
+    rows = json.loads((tmp_path / "rep" / "results.json").read_text())["rows"]
+    assert {r["features"] for r in rows} == {"classical", "learned"}
+    for r in rows:
+        assert r["tip_error_p95_mm"] is not None and 0 < r["tip_error_p95_mm"] < 5
+        assert r["sequences"] == 2 and r["frames"] == 80 and r["latency_p99_ms"] > 0
+    report = (tmp_path / "rep" / "report.md").read_text()
+    assert "5.54" in report  # Mathiassen's KF+F 95th percentile beside ours
+    assert "Headline `tip_error_p95_mm`" in report
+    for caption_file in ("inplane_error_cdf.png", "inplane_error_frames.png"):
+        assert (tmp_path / "rep" / caption_file).stat().st_size > 1000
+    assert res["comparison"][0]["method"] == "kf+f"
