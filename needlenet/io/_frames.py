@@ -1,0 +1,167 @@
+"""Frame-grabbed B-mode: a folder of image files or a video file (read with OpenCV), as in
+Mathiassen 2017, with the geometry given on the command line or in a sidecar JSON.
+
+The sidecar is ``frames.json`` inside the folder, or ``<video>.json`` (``clip.json`` or
+``clip.mp4.json``) next to a video; its keys, all optional:
+
+- ``spacing_mm``: one number (square pixels) or ``[dz, dx]`` (array order: depth, lateral);
+- ``origin_mm``: ``[z0, x0]``, the position of the top-left pixel of the (cropped) image;
+- ``fps``: frames per second; ``timestamps_s``: one time per frame instead;
+- ``modality``: ``inplane`` or ``axial``;
+- ``crop``: ``[x, y, w, h]`` in pixels, the image area of a screen capture;
+- ``dynamic_range_db``: of the scanner's log compression, when known.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import RecordingError
+
+__all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "read_sidecar", "sidecar_path",
+           "read_image_folder", "read_video", "apply_crop"]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv")
+SIDECAR_KEYS = ("spacing_mm", "origin_mm", "fps", "timestamps_s", "modality", "crop",
+                "dynamic_range_db")
+
+
+def sidecar_path(path: Path) -> Path | None:
+    """The sidecar JSON of a folder or a video, if there is one."""
+    cands = [path / "frames.json"] if path.is_dir() else \
+        [path.with_suffix(".json"), path.with_name(path.name + ".json")]
+    return next((c for c in cands if c.is_file()), None)
+
+
+def read_sidecar(path: Path) -> dict:
+    """Read and check a sidecar JSON; unknown keys are an error (a misspelt key would
+    otherwise be silently ignored)."""
+    src = str(path)
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise RecordingError(f"{src}: not a readable JSON sidecar ({exc})") from None
+    if not isinstance(d, dict):
+        raise RecordingError(f"{src}: the sidecar must be a JSON object")
+    unknown = sorted(set(d) - set(SIDECAR_KEYS))
+    if unknown:
+        raise RecordingError(f"{src}: unknown key {unknown[0]!r}; expected "
+                             f"{', '.join(SIDECAR_KEYS)}")
+
+    def numbers(key, sizes):
+        v = d[key]
+        try:
+            a = np.atleast_1d(np.asarray(v, float))
+        except (TypeError, ValueError):
+            raise RecordingError(f"{src}: key {key!r} must be numbers, got {v!r}") from None
+        if a.ndim != 1 or a.size not in sizes or not np.all(np.isfinite(a)):
+            raise RecordingError(f"{src}: key {key!r} must be {' or '.join(map(str, sizes))} "
+                                 f"finite numbers, got {v!r}")
+        return a
+
+    out = {}
+    if "spacing_mm" in d:
+        out["spacing_mm"] = numbers("spacing_mm", (1, 2))
+    if "origin_mm" in d:
+        out["origin_mm"] = numbers("origin_mm", (2,))
+    if "fps" in d:
+        out["fps"] = float(numbers("fps", (1,))[0])
+    if "dynamic_range_db" in d:
+        out["dynamic_range_db"] = float(numbers("dynamic_range_db", (1,))[0])
+    if "timestamps_s" in d:
+        v = d["timestamps_s"]
+        try:
+            out["timestamps_s"] = np.asarray(v, float).ravel()
+        except (TypeError, ValueError):
+            raise RecordingError(f"{src}: key 'timestamps_s' must be numbers") from None
+    if "crop" in d:
+        out["crop"] = tuple(int(c) for c in numbers("crop", (4,)))
+    if "modality" in d:
+        if d["modality"] not in ("inplane", "axial"):
+            raise RecordingError(f"{src}: key 'modality' must be 'inplane' or 'axial' for 2D "
+                                 f"frames, got {d['modality']!r}")
+        out["modality"] = d["modality"]
+    return out
+
+
+def apply_crop(images: np.ndarray, crop, src: str) -> np.ndarray:
+    """Cut ``crop = (x, y, w, h)`` (pixels; x along the columns) out of every 2D frame."""
+    x, y, w, h = (int(c) for c in crop)
+    H, W = images.shape[1:3]
+    if w < 2 or h < 2 or x < 0 or y < 0 or x + w > W or y + h > H:
+        raise RecordingError(f"{src}: crop x,y,w,h = {x},{y},{w},{h} does not fit in frames of "
+                             f"{W}x{H} pixels (width x height)")
+    return np.ascontiguousarray(images[:, y:y + h, x:x + w])
+
+
+def _natural_key(p: Path):
+    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", p.name)]
+
+
+def _gray(img: np.ndarray) -> np.ndarray:
+    import cv2
+
+    if img.ndim == 3:
+        code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+        img = cv2.cvtColor(img, code)
+    return img
+
+
+def read_image_folder(path: str | os.PathLike) -> np.ndarray:
+    """Every image file of a folder, in natural order (``f2.png`` before ``f10.png``), as
+    uint8 gray frames ``(T, H, W)``; colour is converted to gray (OpenCV's BGR luma)."""
+    import cv2
+
+    path = Path(path)
+    files = sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
+                   key=_natural_key)
+    if not files:
+        raise RecordingError(f"{path}: no image files ({', '.join(IMAGE_SUFFIXES)}) in the "
+                             "folder")
+    frames = []
+    for f in files:
+        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise RecordingError(f"{f}: not a readable image")
+        img = _gray(img)
+        if img.dtype != np.uint8:
+            raise RecordingError(f"{f}: {img.dtype} pixels; needlenet reads 8-bit frames")
+        if frames and img.shape != frames[0].shape:
+            raise RecordingError(f"{f}: {img.shape[1]}x{img.shape[0]} pixels, but "
+                                 f"{files[0].name} has {frames[0].shape[1]}x{frames[0].shape[0]}")
+        frames.append(img)
+    return np.stack(frames)
+
+
+def read_video(path: str | os.PathLike) -> tuple[np.ndarray, float | None]:
+    """Every frame of a video (OpenCV ``VideoCapture``) as uint8 gray ``(T, H, W)``, and the
+    container's frame rate (None when it does not say)."""
+    import cv2
+
+    src = str(path)
+    cap = cv2.VideoCapture(src)
+    try:
+        if not cap.isOpened():
+            raise RecordingError(f"{src}: OpenCV cannot open this video (damaged file, or a "
+                                 "codec it lacks)")
+        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        frames = []
+        while True:
+            ok, img = cap.read()
+            if not ok:
+                break
+            img = _gray(img)
+            if frames and img.shape != frames[0].shape:
+                raise RecordingError(f"{src}: frame {len(frames)} changes size")
+            frames.append(img)
+    finally:
+        cap.release()
+    if not frames:
+        raise RecordingError(f"{src}: no frames could be decoded")
+    return np.stack(frames), (fps if np.isfinite(fps) and fps > 0 else None)

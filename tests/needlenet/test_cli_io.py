@@ -1,0 +1,180 @@
+"""needlenet synth/track on recordings of your own: PLUS files written by SimpleITK and by
+needlenet track end to end; synth -> PLUS -> track -> PLUS keeps frames, spacing, transforms
+and timestamps; bad input is one line and exit status 2; nothing is overwritten unasked."""
+
+import json
+import socket
+
+import cv2
+import numpy as np
+import pytest
+
+import synth
+from needlenet.cli import main
+from needlenet.io import read_plus
+
+sitk = pytest.importorskip("SimpleITK")
+
+ARGS = ["--frames", "12", "--param", "width_mm=25", "--param", "depth_mm=30", "--param",
+        "start_length_mm=18", "--angle", "40", "--background", "homogeneous", "--seed", "12"]
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return synth.generate("inplane", seed=12, frames=12, width_mm=25.0, depth_mm=30.0,
+                          angle_deg=40.0, start_length_mm=18.0, background="homogeneous")
+
+
+@pytest.fixture(scope="module")
+def sitk_file(seq, tmp_path_factory):
+    """The sequence as SimpleITK writes a PLUS file: no labels, no needlenet fields."""
+    img = sitk.GetImageFromArray(seq.images)
+    dz, dx = seq.spacing_mm
+    z0, x0 = seq.origin_mm
+    img.SetSpacing((float(dx), float(dz), 1.0))
+    img.SetOrigin((float(x0), float(z0), 0.0))
+    for i, t in enumerate(seq.timestamps_s):
+        img.SetMetaData(f"Seq_Frame{i:04d}_Timestamp", repr(float(t)))
+        img.SetMetaData(f"Seq_Frame{i:04d}_ImageStatus", "OK")
+    img.SetMetaData("UltrasoundImageOrientation", "MF")
+    path = tmp_path_factory.mktemp("sitk") / "scan.seq.mha"
+    sitk.WriteImage(img, str(path), useCompression=True)
+    return path
+
+
+def _tips(res):
+    return [(i, np.array(f["tip_mm"])) for i, f in enumerate(res["frames"])
+            if f["status"] == "tracking"]
+
+
+def test_simpleitk_plus_file_tracks_end_to_end(seq, sitk_file, tmp_path, capsys):
+    out = tmp_path / "r.json"
+    rc = main(["track", str(sitk_file), "--tracker", "inplane", "--method", "kf+f",
+               "--json", str(out), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    res = json.loads(out.read_text())
+    assert len(res["frames"]) == 12 and "norm_e_mm" not in res["summary"]  # no labels
+    tips = _tips(res)
+    assert len(tips) >= 8
+    # the geometry came through: the tracked tips are where synth put the needle
+    err = [np.linalg.norm(t - seq.tip_mm[i]) for i, t in tips]
+    assert np.median(err) < 1.0
+
+
+def test_synth_plus_track_plus_round_trip(tmp_path, capsys):
+    src, res_plus, res_json = tmp_path / "s.seq.mha", tmp_path / "r.seq.mha", tmp_path / "r.json"
+    assert main(["synth", "inplane", "--out", str(src), *ARGS, "--quiet"]) == 0
+    assert main(["track", str(src), "--tracker", "inplane", "--method", "kf+f", "--json",
+                 str(res_json), "--out-plus", str(res_plus), "--quiet"]) == 0
+    a, b = read_plus(src), read_plus(res_plus)
+    np.testing.assert_array_equal(b.images, a.images)
+    np.testing.assert_array_equal(b.spacing_mm, a.spacing_mm)
+    np.testing.assert_array_equal(b.origin_mm, a.origin_mm)
+    np.testing.assert_array_equal(b.timestamps_s, a.timestamps_s)
+    np.testing.assert_array_equal(b.transforms["ProbeToReference"],
+                                  a.transforms["ProbeToReference"])
+    res = json.loads(res_json.read_text())
+    assert res["summary"]["tip_error_p95_mm"] < 1.0  # labels came through the PLUS file
+    ok = b.transform_ok["NeedleTipToReference"]
+    np.testing.assert_array_equal(ok, [f["status"] == "tracking" for f in res["frames"]])
+    pose = b.transforms["ProbeToReference"]
+    for i, tip in _tips(res):
+        m = np.linalg.inv(pose[i]) @ b.transforms["NeedleTipToReference"][i]
+        np.testing.assert_allclose(m[[0, 2], 3], tip, atol=1e-5)
+        np.testing.assert_allclose(m[[0, 2], 2], res["frames"][i]["direction"], atol=1e-5)
+    # the ground truth of synth's PLUS file equals the .npz labels
+    gt = synth.generate("inplane", seed=12, frames=12, width_mm=25.0, depth_mm=30.0,
+                        angle_deg=40.0, start_length_mm=18.0, background="homogeneous")
+    m = np.linalg.inv(a.transforms["ProbeToReference"]) @ a.transforms["NeedleTipToReference"]
+    np.testing.assert_allclose(m[:, [0, 2], 3], gt.tip_mm, atol=1e-10)
+
+
+def test_synth_mhd_and_format_checks(tmp_path, capsys):
+    out = tmp_path / "s.mhd"
+    assert main(["synth", "inplane", "--out", str(out), "--frames", "2", "--param",
+                 "width_mm=10", "--param", "depth_mm=12", "--quiet"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.mhd", "s.zraw"]
+    assert read_plus(out).n_frames == 2
+    (tmp_path / "s.mhd").unlink()  # the data file alone still blocks a new output
+    rc = main(["synth", "inplane", "--out", str(out), "--frames", "2", "--quiet"])
+    assert rc == 2 and "s.zraw exists" in capsys.readouterr().err
+    rc = main(["synth", "inplane", "--out", str(tmp_path / "x.npz"), "--format", "plus"])
+    assert rc == 2 and "must end in .mha or .mhd" in capsys.readouterr().err
+
+
+def _one_line_error(capsys, *needles):
+    err = capsys.readouterr().err
+    assert err.startswith("needlenet: error: ") and err.count("\n") == 1, err
+    for n in needles:
+        assert n in err, err
+    return err
+
+
+def test_bad_recordings_are_one_line(seq, tmp_path, capsys):
+    from needlenet.io import save_plus_sequence
+
+    p = save_plus_sequence(seq, tmp_path / "a.seq.mha", compress=False)[0]
+    data = p.read_bytes()
+    track = ["--tracker", "inplane", "--method", "kf"]
+    p.write_bytes(data.replace(b"ElementSpacing = 0.1 0.1 1\n", b""))
+    assert main(["track", str(p), *track]) == 2
+    _one_line_error(capsys, "a.seq.mha: no pixel spacing", "--spacing")
+    p.write_bytes(data[:-5000])
+    assert main(["track", str(p), *track]) == 2
+    _one_line_error(capsys, "a.seq.mha: truncated")
+    p.write_bytes(data.replace(b"Orientation = MF\n", b"Orientation = FM\n"))
+    assert main(["track", str(p), *track]) == 2
+    _one_line_error(capsys, "UltrasoundImageOrientation = 'FM' is unknown")
+    assert main(["track", str(p), *track, "--crop", "1,2,3"]) == 2
+    _one_line_error(capsys, "--crop '1,2,3': expected X,Y,W,H")
+    assert main(["track", str(p), *track, "--spacing", "abc"]) == 2
+    _one_line_error(capsys, "--spacing 'abc'")
+
+
+def test_outputs_are_checked_before_work(sitk_file, tmp_path, capsys):
+    out = tmp_path / "r.seq.mha"
+    out.write_bytes(b"precious")
+    track = ["track", str(sitk_file), "--tracker", "inplane", "--method", "kf", "--quiet"]
+    assert main([*track, "--out-plus", str(out)]) == 2
+    _one_line_error(capsys, "r.seq.mha exists; pass --overwrite")
+    assert out.read_bytes() == b"precious"
+    assert main([*track, "--out-plus", str(tmp_path / "r.nrrd")]) == 2
+    _one_line_error(capsys, "must end in .mha or .mhd")
+    assert main([*track, "--out-plus", str(out), "--overwrite"]) == 0
+    assert read_plus(out).n_frames == 12
+
+
+def test_igtl_port_in_use_and_no_client(sitk_file, capsys):
+    track = ["track", str(sitk_file), "--tracker", "inplane", "--method", "kf", "--quiet"]
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        assert main([*track, "--igtl", str(port)]) == 2
+        _one_line_error(capsys, f"port {port}", "address already in use")
+    assert main([*track, "--igtl", "0"]) == 0  # no client: tracks anyway, sends nothing
+    assert "sent 0 frames, skipped 12" in capsys.readouterr().err
+
+
+def test_png_folder_with_spacing_on_the_command_line(seq, tmp_path, capsys):
+    d = tmp_path / "frames"
+    d.mkdir()
+    pad = np.zeros((seq.images.shape[0], seq.images.shape[1] + 20, seq.images.shape[2] + 30),
+                   np.uint8)
+    pad[:, 20:, 30:] = seq.images  # a screen capture: the image area starts at (30, 20)
+    for i, f in enumerate(pad):
+        cv2.imwrite(str(d / f"{i:03d}.png"), f)
+    out = tmp_path / "r.json"
+    track = ["track", str(d), "--tracker", "inplane", "--method", "kf+f", "--quiet"]
+    assert main(track) == 2
+    _one_line_error(capsys, "no pixel spacing", "--spacing")
+    assert main([*track, "--spacing", "0.1"]) == 2
+    _one_line_error(capsys, "no frame times", "--fps")
+    assert main([*track, "--spacing", "0.1", "--fps", "20", "--crop", "30,20,250,300",
+                 "--json", str(out)]) == 0
+    tips = _tips(json.loads(out.read_text()))
+    # without a sidecar, origin 0 is the capture's top-left pixel, so the crop's corner is at
+    # (x, z) = (30, 20) px * 0.1 mm; synth's image starts at its origin_mm
+    shift = np.array(seq.origin_mm[::-1]) - [3.0, 2.0]
+    err = [np.linalg.norm(t + shift - seq.tip_mm[i]) for i, t in tips]
+    assert len(tips) >= 8 and np.median(err) < 1.0
