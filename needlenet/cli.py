@@ -56,9 +56,14 @@ def _add_synth(sub) -> None:
     p = sub.add_parser(
         "synth", help="simulate a labelled needle-insertion sequence",
         description="Simulate a labelled ultrasound sequence of a needle insertion "
-                    "(Field-II-style convolution model) and write it as a .npz sequence file.")
+                    "(Field-II-style convolution model) and write it as a .npz sequence file "
+                    "or a PLUS sequence metafile (.seq.mha) for 3D Slicer.")
     p.add_argument("scenario", nargs="?", help="inplane, volume, volume-motion, axial or servo")
-    p.add_argument("--out", help="output sequence file (.npz)")
+    p.add_argument("--out", help="output sequence file (.npz, or .mha/.mhd for PLUS)")
+    p.add_argument("--format", choices=["npz", "plus"],
+                   help="npz (the sequence file) or plus (a PLUS sequence metafile with "
+                        "ProbeToReference and NeedleTipToReference transforms); default: by "
+                        "the --out suffix")
     p.add_argument("--frames", type=int, help="number of frames (default: the paper's protocol)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--cr", type=float, help="contrast ratio to reach (Zhao 2013 eq. 9)")
@@ -88,8 +93,8 @@ def _cmd_synth(args) -> int:
         raise CLIError(f"synth: unknown scenario {args.scenario!r}; choose one of "
                        f"{', '.join(synth.SCENARIOS)}")
     if not args.out:
-        raise CLIError("synth: --out FILE.npz is required")
-    out = _check_output(args.out, ".npz", args.overwrite, "output")
+        raise CLIError("synth: --out FILE.npz (or FILE.seq.mha) is required")
+    fmt, out = _synth_output(args)
     preview = _check_output(args.preview, ".png", args.overwrite, "preview")
     overrides = {}
     for item in args.param:
@@ -118,7 +123,15 @@ def _cmd_synth(args) -> int:
     except (ValueError, TypeError) as exc:
         raise CLIError(f"synth: {exc}") from None
     seq = synth.generate(args.scenario, seed=args.seed, progress=not args.quiet, **overrides)
-    synth.save_sequence(seq, out, overwrite=args.overwrite)
+    if fmt == "plus":
+        from .io import RecordingError, save_plus_sequence
+
+        try:
+            save_plus_sequence(seq, out, overwrite=args.overwrite)
+        except RecordingError as exc:
+            raise CLIError(f"synth: {exc}") from None
+    else:
+        synth.save_sequence(seq, out, overwrite=args.overwrite)
     print(f"wrote {out}: {seq.n_frames} {seq.modality} frames of {seq.images.shape[1:]} "
           f"at {tuple(round(float(s), 4) for s in seq.spacing_mm)} mm")
     if preview is not None:
@@ -127,13 +140,42 @@ def _cmd_synth(args) -> int:
     return 0
 
 
+def _synth_output(args) -> tuple[str, Path]:
+    """The output format (by ``--format`` or the suffix) and the checked output path."""
+    suffix = Path(args.out).suffix.lower()
+    fmt = args.format or ("plus" if suffix in (".mha", ".mhd") else "npz")
+    if fmt == "plus":
+        return fmt, _check_plus_output(args.out, args.overwrite, "output")
+    return fmt, _check_output(args.out, ".npz", args.overwrite, "output")
+
+
+def _check_plus_output(path: str, overwrite: bool, what: str) -> Path:
+    """A PLUS output (``.mha``, ``.seq.mha``, or ``.mhd`` with its ``.zraw``): checked like
+    every output, the data file next to an ``.mhd`` included."""
+    from .io._metaimage import plus_outputs
+
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".mha", ".mhd"):
+        raise CLIError(f"{what} {path}: a PLUS sequence file must end in .mha or .mhd "
+                       "(e.g. NAME.seq.mha)")
+    first = _check_output(path, suffix, overwrite, what)
+    for extra in plus_outputs(first)[1:]:
+        if extra.exists() and not overwrite:
+            raise CLIError(f"{what} {extra} exists; pass --overwrite to replace it")
+    return first
+
+
 # -- track --------------------------------------------------------------------------------
 
 def _add_track(sub) -> None:
-    p = sub.add_parser("track", help="track the needle in a sequence file",
-                       description="Run a tracker on a sequence file; with labels, report the "
-                                   "paper's metrics.")
-    p.add_argument("file", help="sequence file (.npz)")
+    p = sub.add_parser("track", help="track the needle in a sequence file or a recording",
+                       description="Run a tracker on a sequence file or a recording of your own "
+                                   "(PLUS .mha/.mhd, NRRD, a folder of image frames, a video); "
+                                   "with labels, report the paper's metrics. Results can be "
+                                   "written as a PLUS sequence for 3D Slicer and streamed live "
+                                   "over OpenIGTLink.")
+    p.add_argument("file", help="sequence file (.npz), PLUS sequence (.mha/.mhd), NRRD (.nrrd), "
+                                "a folder of PNG frames or a video (.mp4, .avi, ...)")
     p.add_argument("--tracker", required=True, choices=["inplane", "volume", "axial"])
     p.add_argument("--method", required=True,
                    help="inplane: df om om+f kf kf+f pf pf+f kfv kfv+f pfv pfv+f; "
@@ -142,18 +184,81 @@ def _add_track(sub) -> None:
     p.add_argument("--model", help="an ONNX model instead of the shipped one")
     p.add_argument("--json", dest="json_out", help="write per-frame results and the summary")
     p.add_argument("--overlay", help="write an overlay animation (.gif, .mp4 or .avi)")
+    p.add_argument("--spacing", metavar="MM|DZ,DX",
+                   help="pixel spacing in mm, one value or per array axis (depth first); "
+                        "overrides the file's and is required when it has none")
+    p.add_argument("--crop", metavar="X,Y,W,H",
+                   help="keep only this pixel rectangle of 2D frames (the image area of a "
+                        "screen capture)")
+    p.add_argument("--fps", type=float,
+                   help="frame rate, for recordings without frame times (overrides them)")
+    p.add_argument("--out-plus", metavar="FILE.seq.mha",
+                   help="write the images and a NeedleTipToReference transform per frame as a "
+                        "PLUS sequence (.mha or .mhd) for 3D Slicer's Sequences module")
+    p.add_argument("--igtl", type=int, metavar="PORT",
+                   help="stream each frame over OpenIGTLink on this port: IMAGE, the "
+                        "NeedleTipToReference TRANSFORM, tip and entry POINTs")
+    p.add_argument("--igtl-host", default="127.0.0.1",
+                   help="127.0.0.1 (default, this machine only) or a network interface name")
+    p.add_argument("--igtl-wait", type=float, default=0.0, metavar="S",
+                   help="wait up to S seconds for an OpenIGTLink client before tracking")
+    p.add_argument("--realtime", action="store_true",
+                   help="pace the frames at their timestamps (for watching a stream live)")
     p.add_argument("--seed", type=int, default=0, help="seed of randomised methods")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_track)
 
 
-def _cmd_track(args) -> int:
-    import json
+def _load_for_track(args):
+    """The recording as a sequence; bad input becomes one CLIError line."""
+    import numpy as np
 
     import synth
 
+    from .io import RecordingError, load_recording
+    from .io._recording import parse_crop, parse_spacing
+
+    try:
+        spacing = None if args.spacing is None else parse_spacing(args.spacing)
+        crop = None if args.crop is None else parse_crop(args.crop)
+        is_npz = Path(args.file).suffix.lower() == ".npz"
+        modality = None if is_npz or args.tracker == "volume" else args.tracker
+        seq = load_recording(args.file, modality=modality, spacing_mm=spacing, crop=crop,
+                             fps=args.fps)
+    except (RecordingError, synth.SequenceFileError) as exc:
+        raise CLIError(str(exc)) from None
+    if seq.meta.get("format") == "plus" and args.spacing is None and \
+            np.allclose(seq.spacing_mm, 1.0):
+        print(f"needlenet: note: {args.file} says ElementSpacing = 1 (PLUS's default, pixels); "
+              "pass --spacing if a pixel is not 1 mm", file=sys.stderr)
+    return seq
+
+
+def _open_stream(args):
+    if args.igtl is None:
+        return None
+    from .io import IGTLStreamer, StreamError
+
+    try:
+        streamer = IGTLStreamer(args.igtl, host=args.igtl_host)
+    except StreamError as exc:
+        raise CLIError(f"--igtl: {exc}") from None
+    print(f"OpenIGTLink: serving on {streamer.host}:{streamer.port}", file=sys.stderr)
+    if args.igtl_wait > 0 and not streamer.wait_for_client(args.igtl_wait):
+        print(f"OpenIGTLink: no client after {args.igtl_wait:g} s; tracking anyway (frames are "
+              "sent once a client connects)", file=sys.stderr)
+    return streamer
+
+
+def _cmd_track(args) -> int:
+    import json
+    import time
+
+    import numpy as np
+
     from .eval import evaluate, latency_summary
+    from .trackers._base import frames_from_sequence
     from .trackers._registry import make_tracker, tracker_class
 
     out_json = _check_output(args.json_out, ".json", args.overwrite, "--json")
@@ -163,14 +268,15 @@ def _cmd_track(args) -> int:
         if suffix not in (".gif", ".mp4", ".avi"):
             raise CLIError(f"--overlay {args.overlay}: use .gif, .mp4 or .avi")
         overlay = _check_output(args.overlay, suffix, args.overwrite, "--overlay")
+    out_plus = None if args.out_plus is None else \
+        _check_plus_output(args.out_plus, args.overwrite, "--out-plus")
+    if args.igtl is not None and not 0 <= args.igtl <= 65535:
+        raise CLIError(f"--igtl {args.igtl}: a port is 0 to 65535")
     cls = tracker_class(args.tracker)
     if args.method not in cls.methods:
         raise CLIError(f"track: tracker {args.tracker!r} has no method {args.method!r}; "
                        f"choose one of {', '.join(cls.methods)}")
-    try:
-        seq = synth.load_sequence(args.file)
-    except synth.SequenceFileError as exc:
-        raise CLIError(str(exc)) from None
+    seq = _load_for_track(args)
     if seq.modality != args.tracker:
         raise CLIError(f"track: {args.file} holds {seq.modality!r} frames "
                        f"({seq.ndim}D); the {args.tracker!r} tracker needs "
@@ -184,8 +290,29 @@ def _cmd_track(args) -> int:
         raise CLIError(f"track: {exc}") from None
     from synth._render import Progress
 
+    streamer = _open_stream(args)
     bar = Progress(seq.n_frames, f"track {args.tracker}/{args.method}", not args.quiet)
-    estimates = tracker.run(seq, progress=bar.update)
+    estimates = []
+    ts = np.asarray(seq.timestamps_s, float)
+    start = time.perf_counter()
+    try:
+        for i, frame in enumerate(frames_from_sequence(seq)):
+            if args.realtime:
+                time.sleep(max(0.0, (ts[i] - ts[0]) - (time.perf_counter() - start)))
+            est = tracker.update(frame)
+            estimates.append(est)
+            bar.update()
+            if streamer is not None:
+                entry = est.extras.get("entry_mm", est.extras.get("axis_point_mm"))
+                streamer.send_frame(seq.images[i], seq.spacing_mm, est.tip_mm, est.direction,
+                                    entry, est.status, origin=seq.origin_mm,
+                                    probe_pose=None if seq.probe_pose is None
+                                    else seq.probe_pose[i], timestamp=None)
+    finally:
+        if streamer is not None:
+            streamer.close()
+            print(f"OpenIGTLink: sent {streamer.frames_sent} frames, skipped "
+                  f"{streamer.frames_skipped} (no client)", file=sys.stderr)
     summary = {"file": str(args.file), "tracker": args.tracker, "method": args.method,
                "features": args.features, "frames": seq.n_frames}
     if seq.has_labels:
@@ -204,6 +331,14 @@ def _cmd_track(args) -> int:
 
         write_overlay(overlay, seq, estimates)
         print(f"wrote {overlay}")
+    if out_plus is not None:
+        from .io import RecordingError, save_plus_sequence
+
+        try:
+            save_plus_sequence(seq, out_plus, estimates, overwrite=args.overwrite)
+        except RecordingError as exc:
+            raise CLIError(f"--out-plus: {exc}") from None
+        print(f"wrote {out_plus}")
     return 0
 
 
@@ -268,7 +403,9 @@ def _cmd_train(args) -> int:
 
         net, hp = load_checkpoint(metrics["checkpoint"])
         r = export_onnx(net, hp["modality"], hp["spacing_mm"], export, overwrite=args.overwrite,
-                        extra_metadata={"train_steps": cfg.steps, "train_seed": args.seed})
+                        extra_metadata={"train_steps": cfg.steps, "train_seed": args.seed},
+                        target_reference=hp.get("target_reference", "centerline"),
+                        normalization=hp.get("normalization", "fixed"))
         print(f"wrote {export} ({r['bytes']} bytes, onnxruntime vs torch {r['max_abs_diff']:.1e})")
     return 0
 
@@ -290,7 +427,9 @@ def _cmd_export(args) -> int:
 
     try:
         net, hp = load_checkpoint(args.checkpoint)
-        r = export_onnx(net, hp["modality"], hp["spacing_mm"], out, overwrite=args.overwrite)
+        r = export_onnx(net, hp["modality"], hp["spacing_mm"], out, overwrite=args.overwrite,
+                        target_reference=hp.get("target_reference", "centerline"),
+                        normalization=hp.get("normalization", "fixed"))
     except (ValueError, ExportError) as exc:
         raise CLIError(f"export: {exc}") from None
     print(f"wrote {out} ({r['bytes']} bytes, opset {r['opset']}, IR {r['ir_version']}, "

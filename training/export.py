@@ -13,7 +13,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from .data import INTENSITY_MEAN, INTENSITY_STD
+from needlenet.features._resample import NORMALIZATIONS
+
 from .networks import INPUT_MULTIPLE, OUTPUT_STRIDE, build_network
 
 __all__ = ["export_onnx", "load_checkpoint", "ExportError", "OPSET", "IR_VERSION"]
@@ -63,8 +64,13 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[nn.Module, dict]:
 
 def export_onnx(net: nn.Module, modality: str, spacing_mm: float, out: str | os.PathLike,
                 version: str = "0.1.0", extra_metadata: dict | None = None,
-                overwrite: bool = False, seed: int = 0) -> dict:
+                overwrite: bool = False, seed: int = 0,
+                target_reference: str = "centerline", normalization: str = "fixed") -> dict:
     """Write ``net`` as ONNX (input ``image``, output ``likelihood``, dynamic spatial axes).
+
+    ``normalization``: a key of ``NORMALIZATIONS`` (the model's input intensity scaling).
+    ``target_reference`` (metadata): where the maps mark the needle, ``"centerline"`` or
+    ``"wall"`` (the wall facing the probe; see ``training.data.WALL_REFERENCED``).
 
     onnxruntime's output is compared with torch's on random inputs of several (odd-padded)
     sizes; if the largest absolute difference exceeds 1e-4, :class:`ExportError` is raised
@@ -98,10 +104,10 @@ def export_onnx(net: nn.Module, modality: str, spacing_mm: float, out: str | os.
         meta = {
             "needlenet_version": version, "modality": modality,
             "spacing_mm": json.dumps([spacing_mm] * dims),
-            "normalization": json.dumps({"scale": 1 / 255.0, "mean": INTENSITY_MEAN,
-                                         "std": INTENSITY_STD}),
+            "normalization": json.dumps(NORMALIZATIONS[normalization]),
             "output_stride": str(OUTPUT_STRIDE), "input_multiple": str(INPUT_MULTIPLE),
             "channels": json.dumps(["shaft", "tip"]),
+            "target_reference": target_reference,
         }
         meta.update({k: str(v) for k, v in (extra_metadata or {}).items()})
         del model.metadata_props[:]

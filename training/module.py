@@ -56,7 +56,8 @@ def tip_error_mm(prob_tip: np.ndarray, target_tip: np.ndarray, spacing_mm: float
 
 class LikelihoodModule(L.LightningModule):
     def __init__(self, net: nn.Module, modality: str, spacing_mm: float, lr: float = 3e-3,
-                 max_steps: int = 1000, weight_decay: float = 1e-4):
+                 max_steps: int = 1000, weight_decay: float = 1e-4,
+                 target_reference: str = "centerline", normalization: str = "fixed"):
         super().__init__()
         self.save_hyperparameters(ignore=["net"])
         self.net = net

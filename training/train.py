@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .data import DataConfig, SynthDataModule
+from .data import DataConfig, SynthDataModule, target_reference
 from .module import LikelihoodModule
 from .networks import build_network, count_parameters
 
@@ -37,7 +37,7 @@ class TrainConfig:
 
 # The shipped models: spacing and crop per modality (commands in README).
 DEFAULTS = {
-    "inplane": TrainConfig(modality="inplane", steps=1500, out_dir="runs/inplane",
+    "inplane": TrainConfig(modality="inplane", steps=900, out_dir="runs/inplane",
                            data=DataConfig(modality="inplane", spacing_mm=0.2, crop=96,
                                            batch_size=16, frames_per_world=24,
                                            crops_per_frame=2, shuffle_buffer=192)),
@@ -48,7 +48,7 @@ DEFAULTS = {
     "volume": TrainConfig(modality="volume", steps=2000, lr=4e-3, out_dir="runs/volume",
                           data=DataConfig(modality="volume", spacing_mm=0.5, crop=40,
                                           batch_size=4, frames_per_world=8, val_frames=24,
-                                          crops_per_frame=3)),
+                                          crops_per_frame=3, normalization="median")),
 }
 
 
@@ -73,7 +73,9 @@ def train(config: TrainConfig) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     net = build_network(config.modality, config.width)
     module = LikelihoodModule(net, config.modality, config.data.spacing_mm, lr=config.lr,
-                              max_steps=config.steps)
+                              max_steps=config.steps,
+                              target_reference=target_reference(config.modality),
+                              normalization=config.data.normalization)
     dm = SynthDataModule(config.data)
     ckpt = ModelCheckpoint(dirpath=out, filename="last", save_last=False, every_n_train_steps=
                            max(config.val_every, 1), save_top_k=1)

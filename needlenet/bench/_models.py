@@ -9,7 +9,9 @@ scenario's own, which the training stream only saw as one draw among many.
 Metrics per frame, on the frame's grid, through the runtime path the trackers use:
 - shaft AUC: positives within one needle radius of the labelled centreline, negatives farther
   than three radii (pixels in between are ambiguous and left out);
-- tip: the maximum of the tip map against the labelled tip, on frames where the tip is visible.
+- tip: the maximum of the tip map against the labelled tip, on frames where the tip is visible
+  (for a model that marks the wall facing the probe, ``target_reference = "wall"``, against the
+  tip of that wall: the labelled tip moved by the needle's radius across the shaft).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import synth
 
 from ..eval._auc import roc_auc
 from ..features import Frame
-from ..features._learned import LearnedFeatures, shipped_model_path
+from ..features._learned import LearnedFeatures, shipped_model_path, wall_offsets
 
 HELD_OUT_SEED = 20_000_000
 CASES = {
@@ -46,6 +48,21 @@ def _distances(seq, i, grid):
         pts = np.stack([axes[2].ravel(), axes[1].ravel(), axes[0].ravel()], -1)
     d = synth.distance_to_polyline(pts, np.asarray(seq.centerline_mm[i], float))
     return d.reshape(grid.shape)
+
+
+def map_peak(m: np.ndarray, half: int = 3) -> np.ndarray:
+    """Sub-pixel index of a map's maximum: the centroid of the map above half its maximum in
+    a (2 half + 1)^D window around the arg-max (the model's stride-2 output, linearly
+    upsampled, is otherwise quantised to its own grid)."""
+    idx = np.array(np.unravel_index(int(np.argmax(m)), m.shape))
+    lo = np.maximum(idx - half, 0)
+    hi = np.minimum(idx + half + 1, m.shape)
+    win = m[tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))].astype(float)
+    w = np.maximum(win - 0.5 * float(m.flat[np.ravel_multi_index(tuple(idx), m.shape)]), 0.0)
+    if w.sum() <= 0:
+        return idx.astype(float)
+    grids = np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi, strict=True)], indexing="ij")
+    return np.array([(g * w).sum() / w.sum() for g in grids])
 
 
 def evaluate_model(modality: str, source: LearnedFeatures, n_sequences: int, frames: int,
@@ -74,8 +91,14 @@ def evaluate_model(modality: str, source: LearnedFeatures, n_sequences: int, fra
                 # slice is at it; the tracked point is the cross-section (shaft channel)
                 tip_visible = False
             if tip_visible and lk.tip is not None:
-                peak = np.array(np.unravel_index(int(np.argmax(lk.tip)), g.shape), float)
-                tips.append(float(np.linalg.norm(g.index_to_points(peak) - seq.tip_mm[i])))
+                peak = map_peak(lk.tip)
+                true_tip = np.asarray(seq.tip_mm[i], float)
+                if source.target_reference == "wall":
+                    # the map marks the tip of the wall facing the probe (the bevel's echo),
+                    # a radius from the centre line; the trackers add the radius back
+                    off = wall_offsets(seq.centerline_mm[i], r)[-1]
+                    true_tip = true_tip + off[[0, 2]]
+                tips.append(float(np.linalg.norm(g.index_to_points(peak) - true_tip)))
         log(f"  {modality} held-out sequence {k}: AUC so far {np.nanmean(aucs):.4f}")
     tips_a = np.asarray(tips)
     return {

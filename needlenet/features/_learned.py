@@ -14,15 +14,36 @@ from pathlib import Path
 import numpy as np
 
 from ._base import FeatureSource, Frame, Likelihood
-from ._resample import pad_to_multiple, to_frame_grid, to_model_grid
+from ._resample import (
+    NORMALIZATIONS,
+    image_level,
+    normalize,
+    pad_to_multiple,
+    to_frame_grid,
+    to_model_grid,
+)
 
-__all__ = ["LearnedFeatures", "ModelError", "shipped_model_path", "SHIPPED_MODELS"]
+__all__ = ["LearnedFeatures", "ModelError", "shipped_model_path", "SHIPPED_MODELS", "wall_offsets"]
 
 SHIPPED_MODELS = {"inplane": "inplane.onnx", "axial": "axial.onnx", "volume": "volume.onnx"}
 
 
 class ModelError(ValueError):
     """A model file that is missing, corrupt, or made for another modality."""
+
+
+def wall_offsets(cl: np.ndarray, radius_mm: float) -> np.ndarray:
+    """(K, 3) offsets from centre-line samples (probe frame, z = depth) to the wall that faces
+    a linear probe: -r times the unit of the beam direction +z made perpendicular to the
+    centre line's tangent (where the synth scanner draws the needle's echo). The targets of a
+    ``target_reference = "wall"`` model sit there."""
+    cl = np.asarray(cl, float)
+    t = np.gradient(cl, axis=0) if len(cl) > 1 else np.array([[1.0, 0.0, 0.0]])
+    t = t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+    nb = np.array([0.0, 0.0, 1.0])[None] - t[:, 2:3] * t
+    n = np.linalg.norm(nb, axis=1, keepdims=True)
+    nb = np.where(n > 1e-6, nb / np.maximum(n, 1e-12), 0.0)
+    return -float(radius_mm) * nb
 
 
 def shipped_model_path(modality: str) -> Path:
@@ -69,8 +90,11 @@ class LearnedFeatures(FeatureSource):
             self.modality = meta["modality"]
             self.spacing_mm = tuple(float(v) for v in json.loads(meta["spacing_mm"]))
             norm = json.loads(meta["normalization"])
-            self.scale, self.mean, self.std = (float(norm["scale"]), float(norm["mean"]),
-                                               float(norm["std"]))
+            self.normalization = {"mode": str(norm.get("mode", "fixed")),
+                                  "scale": float(norm["scale"]), "mean": float(norm["mean"]),
+                                  "std": float(norm["std"])}
+            if self.normalization["mode"] not in NORMALIZATIONS:
+                raise ValueError(f"normalization mode {self.normalization['mode']!r}")
             self.stride = int(meta.get("output_stride", 2))
             self.multiple = int(meta.get("input_multiple", 4))
         except (KeyError, ValueError, TypeError) as exc:
@@ -87,11 +111,20 @@ class LearnedFeatures(FeatureSource):
         self.name = f"learned:{path.name}"
         self.margin_mm = float(margin_mm)
         self.version = meta.get("needlenet_version", "")
+        # where the maps mark the needle: its centre line, or ("wall") the wall facing a
+        # linear probe, which the trackers move to the centre line by the needle's radius
+        self.target_reference = meta.get("target_reference", "centerline")
+        if self.target_reference not in ("centerline", "wall"):
+            raise ModelError(f"model {path}: metadata target_reference must be 'centerline' "
+                             f"or 'wall', got {self.target_reference!r}")
 
-    def run_model(self, image: np.ndarray, spacing_mm) -> np.ndarray:
-        """Maps (2, *image.shape) in [0, 1] for an image at ``spacing_mm``."""
+    def run_model(self, image: np.ndarray, spacing_mm, level: float | None = None) -> np.ndarray:
+        """Maps (2, *image.shape) in [0, 1] for an image at ``spacing_mm``; ``level``: the
+        whole frame's :func:`image_level` when ``image`` is an ROI of it."""
         x = to_model_grid(image, spacing_mm, self.spacing_mm)
-        x = (x * np.float32(self.scale) - np.float32(self.mean)) / np.float32(self.std)
+        if self.normalization["mode"] == "median" and level is None:
+            level = image_level(image)
+        x = normalize(x, self.normalization, level)
         xp, crop = pad_to_multiple(x, self.multiple)
         y = self.session.run(["likelihood"], {"image": xp[None, None].astype(np.float32)})[0][0]
         up = to_frame_grid(y, xp.shape)  # stride-2 output back to the padded model grid
@@ -108,7 +141,8 @@ class LearnedFeatures(FeatureSource):
         m = [int(np.ceil(self.margin_mm / s)) for s in sp]
         big = tuple(slice(max((r.start or 0) - k, 0), min((r.stop or n) + k, n))
                     for r, k, n in zip(roi, m, im.shape, strict=True))
-        maps = self.run_model(im[big], sp)
+        level = image_level(im) if self.normalization["mode"] == "median" else None
+        maps = self.run_model(im[big], sp, level)
         shaft = np.zeros(im.shape, np.float32)
         tip = np.zeros(im.shape, np.float32)
         shaft[big], tip[big] = maps[0], maps[1]

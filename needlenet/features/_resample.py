@@ -6,7 +6,18 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["model_shape", "to_model_grid", "to_frame_grid", "pad_to_multiple"]
+__all__ = ["model_shape", "to_model_grid", "to_frame_grid", "pad_to_multiple", "image_level",
+           "normalize", "NORMALIZATIONS"]
+
+# Intensity normalisations a model can be trained with (stored in its ONNX metadata):
+# "fixed": (I / 255 - 0.35) / 0.25, the same for every image;
+# "median": I / level - 1 with level the median of the frame's non-zero pixels: invariant to
+#   the scanner's gain and to the tissue's grey level, so a needle at contrast ratio CR
+#   (Zhao eq. 9) reads CR - 1 whatever the preset.
+NORMALIZATIONS = {
+    "fixed": {"mode": "fixed", "scale": 1 / 255.0, "mean": 0.35, "std": 0.25},
+    "median": {"mode": "median", "scale": 1.0, "mean": 1.0, "std": 1.0},
+}
 
 
 def model_shape(shape, spacing_mm, model_spacing_mm) -> tuple[int, ...]:
@@ -62,3 +73,28 @@ def pad_to_multiple(a: np.ndarray, multiple: int) -> tuple[np.ndarray, tuple[sli
     if not any(p[1] for p in pads):
         return a, tuple(slice(None) for _ in a.shape)
     return np.pad(a, pads, mode="edge"), tuple(slice(0, n) for n in a.shape)
+
+
+def image_level(image: np.ndarray, max_samples: int = 65536) -> float:
+    """The median of the non-zero pixels (zero: outside a sector scan) of a regular
+    subsample of ``image``; 1.0 for an all-zero image."""
+    a = np.asarray(image)
+    step = max(1, int(np.ceil((a.size / max_samples) ** (1.0 / a.ndim))))
+    sub = a[(slice(None, None, step),) * a.ndim]
+    nz = sub[sub > 0]
+    return float(np.median(nz)) if nz.size else 1.0
+
+
+def normalize(x: np.ndarray, norm: dict, level: float | None = None) -> np.ndarray:
+    """Model input from grey levels ``x`` (0-255, float32) under normalisation ``norm``
+    (see :data:`NORMALIZATIONS`); ``level`` is :func:`image_level` of the whole frame for
+    ``"median"`` (an ROI is normalised like the frame it comes from)."""
+    mode = norm.get("mode", "fixed")
+    mean, std = np.float32(norm["mean"]), np.float32(norm["std"])
+    if mode == "fixed":
+        return (x * np.float32(norm["scale"]) - mean) / std
+    if mode == "median":
+        if level is None:
+            level = image_level(x)
+        return (x / np.float32(max(level, 1e-3)) - mean) / std
+    raise ValueError(f"unknown intensity normalisation mode {mode!r}")

@@ -517,6 +517,10 @@ class AxialTracker(Tracker):
         if self._anchor() == "top_edge":
             center = _below_top_edge(F, center, float(F.mean()),
                                      p.needle_radius_mm / float(spacing[0]))
+        elif getattr(self.features, "target_reference", "centerline") == "wall":
+            # a learned map of the wall facing the probe: the centre lies a radius deeper
+            # (the beam is +z; the needle crosses the slice nearly at right angles)
+            center = center + np.array([p.needle_radius_mm / float(spacing[0]), 0.0])
         return center, score
 
     def _model_extras(self, depth: float, from_f0: np.ndarray) -> dict:

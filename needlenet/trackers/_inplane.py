@@ -100,7 +100,8 @@ class InplaneParams:
     is taken for an outlier and replaced by 0); otherwise it starts at the detection with
     velocity 0, and with Table II's P_0 and Q the KF then lags for a second or two. All ours;
     the paper starts its method by hand once 10 mm of needle is visible and does not say
-    how the velocity starts.
+    how the velocity starts. ``needle_radius_mm``: the needle's (default Mathiassen's 14 G);
+    a learned source that marks the wall facing the probe is moved by it to the centre line.
     """
 
     axis: MathiassenParams = field(default_factory=MathiassenParams)
@@ -115,8 +116,11 @@ class InplaneParams:
     pf_particles: int = 200
     two_point_start: bool = True
     max_start_speed_mm_s: float = 30.0
+    needle_radius_mm: float = 1.054  # 14 G (2.108 mm outer diameter)
 
     def __post_init__(self) -> None:
+        if not self.needle_radius_mm >= 0:
+            raise ValueError(f"needle_radius_mm must be >= 0, got {self.needle_radius_mm}")
         if self.keep_contrast > self.detect_contrast:
             raise ValueError("keep_contrast must not exceed detect_contrast")
         if self.lost_after_frames < 1:
@@ -255,8 +259,13 @@ class InplaneTracker(Tracker):
         return feats, tip_likelihood(feats, self.tip_weights().weights)
 
     def _offset_mm(self, tip_map) -> float:
-        """Line echo to centre line along v_p (classical features only)."""
-        return 0.0 if tip_map is not None else self.tip_weights().axis_offset_mm
+        """Line echo to centre line along v_p: the calibrated offset for classical features;
+        the needle's radius for a learned source that marks the wall facing the probe."""
+        if tip_map is None:
+            return self.tip_weights().axis_offset_mm
+        if getattr(self.features, "target_reference", "centerline") == "wall":
+            return self.params.needle_radius_mm
+        return 0.0
 
     def _tip_positions_mm(self, feats, tip_map) -> np.ndarray:
         """Where each sample of h(x) puts the tip: x plus the fitted ``tip_offset_mm``."""

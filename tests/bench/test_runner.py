@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from needlenet.bench import (
@@ -109,3 +110,11 @@ def test_inplane_demo_tier_report(tmp_path):
     for caption_file in ("inplane_error_cdf.png", "inplane_error_frames.png"):
         assert (tmp_path / "rep" / caption_file).stat().st_size > 1000
     assert res["comparison"][0]["method"] == "kf+f"
+
+
+def test_map_peak_is_subpixel():
+    from needlenet.bench._models import map_peak
+
+    z, y, x = np.meshgrid(np.arange(20), np.arange(18), np.arange(16), indexing="ij")
+    m = np.exp(-((z - 7.3) ** 2 + (y - 9.6) ** 2 + (x - 4.5) ** 2) / (2 * 1.5**2))
+    np.testing.assert_allclose(map_peak(m), [7.3, 9.6, 4.5], atol=0.05)

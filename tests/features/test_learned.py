@@ -44,6 +44,34 @@ def test_volume_maps_and_roi(models):
     assert part.shaft[0, 0, 0] == 0.0  # outside the ROI and its context margin
 
 
+def test_median_normalisation_is_gain_invariant(tmp_path):
+    """A "median" model sees I / median(non-zero I): doubling the gain changes nothing, and
+    an ROI is normalised by its whole frame's level, so it matches the full-frame maps."""
+    from needlenet.features._resample import image_level, normalize
+    from training.export import export_onnx
+    from training.networks import NeedleNet3D
+
+    torch.manual_seed(1)
+    export_onnx(NeedleNet3D().eval(), "volume", 0.5, tmp_path / "m.onnx",
+                normalization="median")
+    f = LearnedFeatures(tmp_path / "m.onnx", "volume", margin_mm=6.0)
+    assert f.normalization["mode"] == "median"
+    shape = (32, 28, 36)
+    img = np.random.default_rng(2).integers(10, 120, shape).astype(np.uint8)
+    img[:, :, :4] = 0  # outside a sector: left out of the level
+    assert image_level(img) == pytest.approx(np.median(img[img > 0]), abs=1.0)
+    x = np.float32([0, 40, 80])
+    np.testing.assert_allclose(normalize(x, f.normalization, 40.0), [-1, 0, 1])
+    g = synth.Grid(shape, (0.5, 0.5, 0.5), (0.0, 0.0, 0.0))
+    a = f.likelihood(Frame(img, g)).shaft
+    b = f.likelihood(Frame((img * 2).astype(np.uint8), g)).shaft
+    np.testing.assert_allclose(a, b, atol=1e-4)
+    roi = (slice(8, 24), slice(8, 20), slice(10, 26))
+    part = f.likelihood(Frame(img, g), roi=roi).shaft
+    inner = (slice(12, 20), slice(12, 16), slice(14, 22))  # far from the context's edges
+    np.testing.assert_allclose(part[inner], a[inner], atol=2e-3)
+
+
 def test_bad_models_are_named(models, tmp_path):
     with pytest.raises(ModelError, match="does not exist"):
         LearnedFeatures(tmp_path / "none.onnx")

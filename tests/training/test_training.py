@@ -26,12 +26,31 @@ def test_targets_peak_on_the_needle():
     seq = synth.generate("inplane", seed=2, frames=2, width_mm=20, depth_mm=25,
                          start_length_mm=18, angle_deg=40, background="homogeneous")
     g = seq.grid()
-    y = make_targets(seq, 1, g)
+    y = make_targets(seq, 1, g, reference="centerline")
     tip_idx = np.unravel_index(np.argmax(y[1]), g.shape)
     assert np.linalg.norm(g.index_to_points(np.array(tip_idx)) - seq.tip_mm[1]) < 0.2
     on = g.points_to_index(seq.tip_mm[1] - 3.0 * seq.direction[1])
     assert y[0][tuple(np.rint(on).astype(int))] > 0.9  # on the shaft, 3 mm behind the tip
     assert y[0].max() <= 1.0 and y[0].min() >= 0.0
+
+
+def test_wall_targets_sit_on_the_echo_a_radius_above_the_centre_line():
+    seq = synth.generate("inplane", seed=2, frames=2, width_mm=20, depth_mm=25,
+                         start_length_mm=18, angle_deg=40, background="homogeneous", gauge=14)
+    g = seq.grid()
+    r = seq.meta["needle"]["radius_mm"]
+    y = make_targets(seq, 1, g)  # in-plane: the wall facing the probe
+    u = seq.direction[1]
+    nb = np.array([-u[1], u[0]]) if u[0] < 0 else np.array([u[1], -u[0]])  # the shallower side
+    tip_idx = np.unravel_index(np.argmax(y[1]), g.shape)
+    assert np.linalg.norm(g.index_to_points(np.array(tip_idx)) - (seq.tip_mm[1] + r * nb)) < 0.2
+    # across the shaft 5 mm behind the tip: the target's ridge and the image's brightest echo
+    # are both a radius shallower than the centre line (the scanner draws the wall there)
+    offs = np.linspace(-2.5, 2.5, 101)
+    pts = (seq.tip_mm[1] - 5.0 * u)[None] + offs[:, None] * nb[None]
+    idx = np.rint(g.points_to_index(pts)).astype(int)
+    assert offs[np.argmax(y[0][idx[:, 0], idx[:, 1]])] == pytest.approx(r, abs=0.1)
+    assert offs[np.argmax(seq.images[1][idx[:, 0], idx[:, 1]])] == pytest.approx(r, abs=0.25)
 
 
 def test_auc_and_tip_error_by_hand():
