@@ -45,7 +45,10 @@ becomes 0 and Y holds its position; the stop is logged in ``events``, never rais
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -61,6 +64,7 @@ from ..backends._kalman import chi2_gate
 __all__ = [
     "YE_TABLE2",
     "MassDamperAxis",
+    "Measurement",
     "PositionPD",
     "SpeedGain",
     "VelocityPI",
@@ -339,6 +343,16 @@ class SpeedGain:
 # --------------------------------------------------------------------------- simulation
 
 
+class Measurement(NamedTuple):
+    """One frame's measurement for :func:`run_ye`: whether the needle was detected, z (3,)
+    in world mm (z_x from the probe's position, section 4.2) and the scanner's imaging time
+    spent to get it (excluded from the loop's own latency)."""
+
+    detected: bool
+    z: np.ndarray | None = None
+    imaging_s: float = 0.0
+
+
 @dataclass(frozen=True)
 class YeServoConfig:
     """Section 4.1's simulation, plus our safety settings (limits None: off).
@@ -367,19 +381,29 @@ class YeServoConfig:
     lost_timeout_s: float = 1.0
     gate_probability: float = 0.997
     adaptive_window: int = 50
+    # adaptive R never below this fraction of the smallest initial R (AdaptiveNoise's floor);
+    # image measurements raise it to the detector's resolution (a pixel), or the gate locks
+    # out a detector's small systematic offset once R has shrunk to nothing
+    adaptive_floor_fraction: float = 1e-3
     p0_diag: tuple[float, ...] = (1e-2, 1e-2, 1e-2, 1e-4, 1e-4)
     ekf: YeEKFParams = YeEKFParams()
+    probe_z_mm: float = 0.0  # the probe's fixed Z (world); Ye moves it in X and Y only
 
 
 def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, seed: int = 0,
            gating: bool = False, adaptive: bool = False, *,
-           config: YeServoConfig | None = None, lost_from_frame: int | None = None) -> dict:
+           config: YeServoConfig | None = None, lost_from_frame: int | None = None,
+           measure: Callable[[int, np.ndarray], Measurement] | None = None) -> dict:
     """Simulate Ye 2025's tracking; returns per-frame arrays, Table 2 metrics and events.
 
     ``lost_from_frame``: from this frame on the needle is never detected (image lost), to
-    exercise the safety stop. Arrays: ``tip`` (n, 3), ``tip_velocity`` (n, 3), ``estimate``
+    exercise the safety stop. ``measure(k, probe_xyz)``: the measurement of frame k with the
+    probe at ``probe_xyz`` (world, mm), a :class:`Measurement`; ``None`` is section 4.2's
+    ideal noisy measurement. Arrays: ``tip`` (n, 3), ``tip_velocity`` (n, 3), ``estimate``
     (n, 3) and ``vx_hat`` (n,), the EKF's posterior at each frame; ``probe`` (n, 3) at each
-    frame; ``detected``, ``accepted`` (n,) bool; ``K_e`` (n,); ``v_in`` (n,).
+    frame; ``detected``, ``accepted`` (n,) bool; ``K_e`` (n,); ``v_in`` (n,);
+    ``latency_ms`` (n,), the wall time of each cycle (measurement, EKF, control) without the
+    scanner's imaging time, and ``imaging_ms`` (n,), that imaging time.
     """
     cfg = YeServoConfig() if config is None else config
     if filter not in ("pv", "prv"):
@@ -393,7 +417,9 @@ def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, see
     ekf = ExtendedKalmanFilter.from_model(
         model, np.zeros(5), np.diag(cfg.p0_diag),
         gate_sigmas=chi2_gate(3, cfg.gate_probability) if gating else None,
-        adaptive=AdaptiveNoise(window=cfg.adaptive_window) if adaptive else None)
+        adaptive=AdaptiveNoise(window=cfg.adaptive_window,
+                               floor_fraction=cfg.adaptive_floor_fraction)
+        if adaptive else None)
 
     v_in = ye_insertion_velocity(n, fs)
     tip, tip_v = ye_tip_path(v_in, fs, cfg.radius_mm, cfg.bend_direction)
@@ -417,15 +443,23 @@ def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, see
     events: list[dict] = []
     stopped = False
     y_hold = 0.0
+    latency = np.zeros(n)
+    imaging = np.zeros(n)
     for k in range(n):
-        probe[k, 0], probe[k, 1] = ax_x.p, ax_y.p
+        t_cycle = time.perf_counter()
+        probe[k, 0], probe[k, 1], probe[k, 2] = ax_x.p, ax_y.p, cfg.probe_z_mm
+        if measure is None:  # section 4.2: detected iff the plane is behind the tip
+            det = bool(ax_x.p < tip[k, 0])
+            z = np.array([ax_x.p, tip[k, 1] + noise[k, 0], tip[k, 2] + noise[k, 1]])
+        else:
+            m = measure(k, probe[k].copy())
+            det, z, imaging[k] = bool(m.detected), m.z, m.imaging_s * 1e3
+        det = det and (lost_from_frame is None or k < lost_from_frame)
         if k > 0:
             ekf.predict(v_in[k - 1])
-        det = bool(ax_x.p < tip[k, 0]) and (lost_from_frame is None or k < lost_from_frame)
         detected[k] = det
         if det:
-            z = np.array([ax_x.p, tip[k, 1] + noise[k, 0], tip[k, 2] + noise[k, 1]])
-            accepted[k] = ekf.update(z).accepted
+            accepted[k] = ekf.update(np.asarray(z, float)).accepted
         est[k] = ekf.x[:3]
         vx_hat[k] = model.velocity(ekf.x, v_in[k])[0]
         K_e[k] = ke.update(det)
@@ -439,6 +473,7 @@ def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, see
         else:
             pi.run(K_e[k] * vx_hat[k] * dt_c)
             pd.run(est[k, 1])
+        latency[k] = (time.perf_counter() - t_cycle) * 1e3 - imaging[k]
     if pi.n_limited or pd.n_limited:
         events.append({"event": "limits_active", "frames_x": pi.n_limited,
                        "frames_y": pd.n_limited})
@@ -456,7 +491,8 @@ def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, see
     return {"tip": tip, "tip_velocity": tip_v, "estimate": est, "vx_hat": vx_hat,
             "probe": probe, "detected": detected, "accepted": accepted, "K_e": K_e,
             "v_in": v_in, "metrics": metrics, "events": events, "stopped": stopped,
-            "filter": filter, "gain": gain, "seed": seed}
+            "filter": filter, "gain": gain, "seed": seed, "latency_ms": latency,
+            "imaging_ms": imaging}
 
 
 def table2(repeats: int = 100, n_samples: int = 2000, seed: int = 0, gating: bool = False,

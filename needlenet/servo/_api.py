@@ -1,0 +1,285 @@
+"""Rows and traces of the closed servo loops, for ``needlenet servo``, ``bench servo`` and
+``demo`` (see the package docstring)."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ._chatelain import CHATELAIN_REST, ChatelainConfig, run_chatelain
+from ._ye import YE_TABLE2, YeServoConfig, run_ye
+
+__all__ = ["SCENARIOS", "ClosedLoopResult", "run_closed_loop", "servo_rows", "check_options",
+           "FILTERS", "GAINS", "FEATURES_2D", "FEATURES_3D", "RUNS_3D"]
+
+SCENARIOS = ("servo", "volume-motion")
+FILTERS = ("pv", "prv")
+GAINS = ("dynamic", "constant")
+FEATURES_2D = ("ideal", "learned", "classical")
+FEATURES_3D = ("classical", "learned")
+RUNS_3D = ("misalignment", "motion")
+
+# Ye's protocol: 2000 samples, 100 repetitions for the ideal measurement; image runs are
+# ~1000 times costlier per frame, so fewer repetitions by default.
+_N_SAMPLES = 2000
+_QUICK_SAMPLES = 400
+
+
+def _default_repeats(features: str, quick: bool) -> int:
+    if features == "ideal":
+        return 10 if quick else 100
+    return 1 if quick else 3
+
+
+def check_options(scenario: str, filters=(), gains=(), features=(), repeats=None,
+                  model=None, seed: int = 0) -> None:
+    """ValueError naming the bad value, before any loop starts; a model that does not load
+    raises ``ModelError`` (a ValueError)."""
+    if scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    for f in filters:
+        if f not in FILTERS:
+            raise ValueError(f"unknown filter {f!r}; choose one of {', '.join(FILTERS)}")
+    for g in gains:
+        if g not in GAINS:
+            raise ValueError(f"unknown gain {g!r}; choose one of {', '.join(GAINS)}")
+    allowed = FEATURES_2D if scenario == "servo" else FEATURES_3D
+    for f in features:
+        if f not in allowed:
+            raise ValueError(f"features {f!r} not available for scenario {scenario!r}; "
+                             f"choose one of {', '.join(allowed)}")
+    if repeats is not None and (int(repeats) != repeats or repeats < 1):
+        raise ValueError(f"repeats must be a positive integer, got {repeats}")
+    if int(seed) != seed or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed}")
+    if model is not None and "learned" in features:
+        from ..features import learned_features
+
+        learned_features("axial" if scenario == "servo" else "volume", str(model))
+
+
+@dataclass
+class ClosedLoopResult:
+    """One closed-loop run, for plots: times (s), the true tip, its estimate and the probe's
+    position (world mm for ``servo``; for ``volume-motion`` the tip in the probe frame and
+    the probe's position in the world), per-cycle flags and the run's raw dict."""
+
+    scenario: str
+    t: np.ndarray
+    p_true: np.ndarray
+    p_hat: np.ndarray
+    probe: np.ndarray
+    detected: np.ndarray
+    metrics: dict
+    events: list
+    raw: dict = field(repr=False, default_factory=dict)
+
+
+# ------------------------------------------------------------------------------- servo (Ye)
+
+
+class _YeImages:
+    """Worlds (one per seed, shared by every configuration) and calibrated detectors."""
+
+    def __init__(self, n_samples: int, model=None):
+        self.n_samples = n_samples
+        self.model = model
+        self.worlds: dict = {}
+        self.detectors: dict = {}
+        self.reach: dict = {}
+
+    def detector(self, features: str):
+        from ._images import calibrate_reach, make_detector
+
+        if features not in self.detectors:
+            det = make_detector(features, self.model)
+            self.detectors[features] = det
+            self.reach[features] = calibrate_reach(det)
+        return self.detectors[features], self.reach[features]
+
+    def world(self, seed: int):
+        from ._images import servo_world
+
+        if seed not in self.worlds:
+            self.worlds.clear()  # one world in memory at a time (~10 MB per 10 mm of path)
+            self.worlds[seed] = servo_world(seed, self.n_samples)
+        return self.worlds[seed]
+
+
+def _ye_run(filt: str, gain: str, features: str, seed: int, n_samples: int,
+            images: _YeImages | None) -> dict:
+    if features == "ideal":
+        r = run_ye(filt, gain, n_samples, seed, gating=True, adaptive=True)
+        r["in_plane"] = r["probe"][:, 0] < r["tip"][:, 0]
+        r["setup_s"], r["reach_mm"] = 0.0, 0.0
+        return r
+    from ._images import image_measurement
+
+    det, reach = images.detector(features)
+    world = images.world(seed)
+    world.rng = np.random.default_rng([seed, 7])  # the same noise for every configuration
+    # R floored at one pixel's variance (the detector's resolution) relative to Ye's R_x
+    floor = float(world.grid.spacing_mm[0]) ** 2 / min(YeServoConfig().ekf.r_pv)
+    cfg = dataclasses.replace(YeServoConfig(), probe_z_mm=world.probe_z,
+                              adaptive_floor_fraction=floor)
+    r = run_ye(filt, gain, n_samples, seed, gating=True, adaptive=True, config=cfg,
+               measure=image_measurement(world, det, reach))
+    inp = np.zeros(n_samples, bool)
+    for k in range(n_samples):  # behind the tip, and the crossing inside the image
+        c = world.crossing(k, r["probe"][k, 0])
+        if c is not None:
+            xz = np.array([c[1] - r["probe"][k, 1], c[2] - r["probe"][k, 2]])
+            inp[k] = bool(world.grid.contains(xz[None])[0])
+    r["in_plane"] = inp
+    r["setup_s"], r["reach_mm"] = world.setup_s, reach
+    return r
+
+
+def _ye_row(runs: list[dict], filt: str, gain: str, features: str, seed: int) -> dict:
+    lat = np.concatenate([r["latency_ms"] for r in runs])
+    lat_img = np.concatenate([r["latency_ms"] + r["imaging_ms"] for r in runs])
+    m = {k: float(np.mean([r["metrics"][k] for r in runs])) for k in runs[0]["metrics"]}
+    paper = YE_TABLE2[f"{gain}-{filt}"]
+    err = np.concatenate([r["estimate"] - r["tip"] for r in runs])
+    return {
+        "scenario": "servo", "gain": gain, "filter": filt, "features": features,
+        "rmse_p_mm": m["rmse_P"], "rmse_vx_mm_s": m["rmse_vx"], "rmse_pux_mm": m["rmse_pux"],
+        "rmse_puy_mm": m["rmse_puy"], "lead_lag_ratio": m["lead_lag_ratio"],
+        "behind_fraction": m["behind_fraction"],
+        "in_plane_fraction": float(np.mean([r["in_plane"].mean() for r in runs])),
+        "detected_fraction": float(np.mean([r["detected"].mean() for r in runs])),
+        "rmse_p_xyz_mm": np.sqrt(np.mean(err**2, axis=0)).round(4).tolist(),
+        "reach_mm": float(runs[0]["reach_mm"]),
+        "latency_median_ms": float(np.median(lat)), "latency_p99_ms": float(np.percentile(lat, 99)),
+        "latency_with_imaging_median_ms": float(np.median(lat_img)),
+        "latency_with_imaging_p99_ms": float(np.percentile(lat_img, 99)),
+        "setup_s": float(np.mean([r["setup_s"] for r in runs])),
+        "safety_stops": int(sum(r["stopped"] for r in runs)),
+        "frames": int(len(runs[0]["tip"])), "repeats": len(runs), "seed": int(seed),
+        "paper_rmse_p_mm": paper["rmse_P"], "paper_rmse_vx_mm_s": paper["rmse_vx"],
+        "paper_rmse_pux_mm": paper["rmse_pux"], "paper_rmse_puy_mm": paper["rmse_puy"],
+        "paper_lead_lag_ratio": paper["lead_lag_ratio"],
+    }
+
+
+# ------------------------------------------------------------------- volume-motion (Chatelain)
+
+
+def _chatelain_config(quick: bool) -> ChatelainConfig:
+    if quick:
+        return ChatelainConfig(size=48, rest_s=2.0, settle_s=0.6, scatterers_per_cell=6.0,
+                               insertion_speed_mm_s=4.0, motion_period_s=6.0,
+                               motion_start_s=1.5)
+    return ChatelainConfig(size=48)
+
+
+def _chatelain_row(runs: list[dict], features: str, run: str, seed: int) -> dict:
+    lat = np.concatenate([r["latency_ms"] for r in runs])
+    lat_img = np.concatenate([r["latency_ms"] + r["imaging_ms"] for r in runs])
+    m = {k: float(np.nanmean([r["metrics"][k] for r in runs])) for k in runs[0]["metrics"]}
+    return {
+        "scenario": "volume-motion", "run": run, "features": features, "gain": None,
+        "filter": None, **m,
+        "latency_median_ms": float(np.median(lat)), "latency_p99_ms": float(np.percentile(lat, 99)),
+        "latency_with_imaging_median_ms": float(np.median(lat_img)),
+        "latency_with_imaging_p99_ms": float(np.percentile(lat_img, 99)),
+        "safety_stops": int(sum(r["stopped"] for r in runs)),
+        "frames": int(len(runs[0]["t"])), "repeats": len(runs), "seed": int(seed),
+        "paper_rest_err_x_mm": CHATELAIN_REST["x_mm"],
+        "paper_rest_err_z_mm": CHATELAIN_REST["z_mm"],
+        "paper_rest_err_theta_deg": CHATELAIN_REST["theta_deg"],
+    }
+
+
+def _trackers(features, model, seed):
+    from ..trackers import make_tracker
+
+    return make_tracker("volume", "chatelain", features=features, model=model, rng=seed)
+
+
+# -------------------------------------------------------------------------------- public
+
+
+def servo_rows(scenario: str, *, filters=FILTERS, gains=GAINS, features=("ideal",),
+               runs=RUNS_3D, repeats: int | None = None, seed: int = 0, model=None,
+               quick: bool = False, progress=None, traces: list | None = None) -> list[dict]:
+    """One row per configuration (see the package docstring); repeats use seeds seed ..
+    seed + repeats - 1. ``progress(done, total, label)`` is called after each run;
+    ``traces``, when a list, receives the :class:`ClosedLoopResult` of each configuration's
+    first repeat."""
+    filters, gains, features, runs = (tuple(x) for x in (filters, gains, features, runs))
+    check_options(scenario, filters, gains, features, repeats, model, seed)
+    rows: list[dict] = []
+    if scenario == "servo":
+        n = _QUICK_SAMPLES if quick else _N_SAMPLES
+        images = _YeImages(n, model)
+        configs = [(f, g, ft) for ft in features for f in filters for g in gains]
+        reps = {ft: repeats or _default_repeats(ft, quick) for ft in features}
+        total = sum(reps[ft] for _, _, ft in configs)
+        done = 0
+        results: dict = {c: [] for c in configs}
+        # seeds outermost: one world per seed serves every configuration
+        for i in range(max(reps.values())):
+            for c in configs:
+                if i >= reps[c[2]]:
+                    continue
+                results[c].append(_ye_run(c[0], c[1], c[2], seed + i, n, images))
+                done += 1
+                if progress is not None:
+                    progress(done, total, f"{c[2]} {c[1]}-{c[0]} seed {seed + i}")
+        for c in configs:
+            rows.append(_ye_row(results[c], c[0], c[1], c[2], seed))
+            if traces is not None:
+                traces.append(_ye_trace(results[c][0]))
+        return rows
+    for r in runs:
+        if r not in RUNS_3D:
+            raise ValueError(f"unknown run {r!r}; choose one of {', '.join(RUNS_3D)}")
+    cfg = _chatelain_config(quick)
+    reps = repeats or 1
+    total, done = len(features) * len(runs) * reps, 0
+    for ft in features:
+        for run in runs:
+            res = []
+            for i in range(reps):
+                res.append(run_chatelain(run, ft, seed + i, config=cfg,
+                                         tracker=_trackers(ft, model, seed + i)))
+                done += 1
+                if progress is not None:
+                    progress(done, total, f"{ft} {run} seed {seed + i}")
+            rows.append(_chatelain_row(res, ft, run, seed))
+            if traces is not None:
+                traces.append(_chatelain_trace(res[0]))
+    return rows
+
+
+def _ye_trace(r: dict) -> ClosedLoopResult:
+    n = len(r["tip"])
+    return ClosedLoopResult("servo", np.arange(n) / 25.0, r["tip"], r["estimate"], r["probe"],
+                            r["detected"], r["metrics"], r["events"], r)
+
+
+def _chatelain_trace(r: dict) -> ClosedLoopResult:
+    return ClosedLoopResult("volume-motion", r["t"], r["tip_true"], r["tip_hat"], r["probe"],
+                            r["tracking"], r["metrics"], r["events"], r)
+
+
+def run_closed_loop(scenario: str, *, filter: str = "prv", gain: str = "dynamic",
+                    features: str = "learned", run: str = "misalignment", seed: int = 0,
+                    model=None, quick: bool = False) -> ClosedLoopResult:
+    """One closed-loop run with its per-cycle trace (for plots and the demo)."""
+    t0 = time.perf_counter()
+    if scenario == "servo":
+        check_options(scenario, (filter,), (gain,), (features,), 1, model, seed)
+        n = _QUICK_SAMPLES if quick else _N_SAMPLES
+        images = None if features == "ideal" else _YeImages(n, model)
+        res = _ye_trace(_ye_run(filter, gain, features, seed, n, images))
+    else:
+        check_options(scenario, (), (), (features,), 1, model, seed)
+        res = _chatelain_trace(run_chatelain(run, features, seed, config=_chatelain_config(quick),
+                                             tracker=_trackers(features, model, seed)))
+    res.raw["wall_s"] = time.perf_counter() - t0
+    return res
