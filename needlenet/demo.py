@@ -20,7 +20,7 @@ import numpy as np
 
 from .bench._runner import HEADLINE, LOWER_IS_BETTER, PAPERS, run_suite
 
-DEMO_SUITES = ("inplane", "axial", "volume")
+DEMO_SUITES = ("inplane", "axial", "volume", "servo")
 
 
 class _Log:

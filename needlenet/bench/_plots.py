@@ -178,26 +178,30 @@ def plot_latency(result: dict, traces: dict, out_dir: Path) -> list[tuple[str, s
 
 
 def plot_servo(result: dict, traces: dict, out_dir: Path) -> list[tuple[str, str]]:
+    """Ye's loop: true tip, estimate and probe along X (insertion) and Y; Chatelain's: the tip
+    in the probe frame (true and estimated), which the servoing drives to X = Z = 0."""
     plt = _plt()
     out = []
-    runs = traces.get("runs", {})
-    for key, tr in sorted(runs.items()):
+    for key, tr in sorted(traces.get("runs", {}).items()):
         t = np.asarray(tr["t"], float)
+        chatelain = str(key[0]).startswith("chatelain")
+        comps = (0, 2) if chatelain else (0, 1)
+        names = ("X (mm)", "Z (mm)") if chatelain else ("x (mm)", "y (mm)")
         fig, axes = plt.subplots(2, 1, figsize=(6.4, 5.0), sharex=True)
-        labels = ("x (mm)", "y (mm)")
-        for a, ax in enumerate(axes):
-            ax.plot(t, np.asarray(tr["p_true"])[:, a], color="k", lw=1.2, label="true tip")
-            ax.plot(t, np.asarray(tr["p_hat"])[:, a], color=COLOURS["learned"], lw=1,
+        for ax, c, name in zip(axes, comps, names, strict=True):
+            ax.plot(t, np.asarray(tr["p_true"])[:, c], color="k", lw=1.2, label="true tip")
+            ax.plot(t, np.asarray(tr["p_hat"])[:, c], color=COLOURS["learned"], lw=1,
                     label="estimated tip")
-            ax.plot(t, np.asarray(tr["probe"])[:, a], color=COLOURS["classical"], lw=1,
-                    label="probe")
-            ax.set_ylabel(labels[a])
+            if not chatelain:
+                ax.plot(t, np.asarray(tr["probe"])[:, c], color=COLOURS["classical"], lw=1,
+                        label="probe")
+            ax.set_ylabel(("tip in probe frame, " if chatelain else "") + name)
         axes[0].legend(fontsize=8)
         axes[-1].set_xlabel("time (s)")
-        name = "servo_" + "_".join(str(k) for k in key).replace("/", "-") + ".png"
-        axes[0].set_title(f"Servo trajectories: {' '.join(str(k) for k in key)}")
-        out.append((f"Servo trajectories ({' '.join(str(k) for k in key)})",
-                    _save(fig, out_dir, name)))
+        label = " ".join(str(k) for k in key)
+        axes[0].set_title(f"Servo: {label}")
+        name = "servo_" + "_".join(str(k) for k in key).replace(" ", "_").replace("/", "-")
+        out.append((f"Servo trajectories ({label})", _save(fig, out_dir, name + ".png")))
     return out
 
 

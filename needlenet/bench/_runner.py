@@ -18,7 +18,7 @@ import numpy as np
 
 from ._machine import machine_description
 
-SUITES = ("synth", "models", "latency", "inplane", "axial", "volume")
+SUITES = ("synth", "models", "latency", "inplane", "axial", "volume", "servo")
 
 # the headline metric of each suite: a fixed key present in every row (lower is better for
 # the four tracking suites and latency; higher for the models' AUC and the simulator's speed)
@@ -32,7 +32,8 @@ LOWER_IS_BETTER = {"inplane": True, "volume": True, "axial": True, "servo": True
 # the fields that identify a configuration apart from its features (for the comparison)
 GROUP_BY = {
     "inplane": ("method",), "axial": ("method", "D_mm"),
-    "volume": ("table", "method", "alpha_deg", "cr"), "servo": ("scenario", "filter", "gain"),
+    "volume": ("table", "method", "alpha_deg", "cr"),
+    "servo": ("scenario", "method", "run"),
     "latency": ("tracker", "method"),
 }
 PAPERS = {
@@ -181,7 +182,7 @@ def comparison_markdown(suite: str, comp: list[dict]) -> str:
 
     for c in comp:
         cl = f(c["classical_best"]) + (f" / {f(c['classical_worst'])}" if multi else "")
-        lines.append("| " + " | ".join(str(c[b]) for b in by) +
+        lines.append("| " + " | ".join("-" if c[b] is None else str(c[b]) for b in by) +
                      f" | {cl} | {f(c['learned'])} | {c['verdict']} |")
     n = len(comp)
     wins = sum(c["verdict"] == "learned better" for c in comp)
