@@ -7,8 +7,9 @@ inhomogeneous backgrounds and a contrast ratio of 2.0 (Zhao eq. 9). The imaging 
 scenario's own, which the training stream only saw as one draw among many.
 
 Metrics per frame, on the frame's grid, through the runtime path the trackers use:
-- shaft AUC: positives within one needle radius of the labelled centreline, negatives farther
-  than three radii (pixels in between are ambiguous and left out);
+- shaft AUC: positives within one needle radius of the labelled needle (its centre line, or for
+  a ``target_reference = "wall"`` model the wall facing the probe), negatives farther than
+  three radii (pixels in between are ambiguous and left out);
 - tip: the maximum of the tip map against the labelled tip, on frames where the tip is visible
   (for a model that marks the wall facing the probe, ``target_reference = "wall"``, against the
   tip of that wall: the labelled tip moved by the needle's radius across the shaft).
@@ -40,13 +41,18 @@ LATENCY_SIZES = {
 }
 
 
-def _distances(seq, i, grid):
+def _distances(seq, i, grid, wall: bool = False):
+    """Distance of every grid point to frame i's needle: its centre line, or (``wall``) the
+    wall facing the probe, where a ``target_reference = "wall"`` model marks it."""
+    cl = np.asarray(seq.centerline_mm[i], float)
+    if wall:
+        cl = cl + wall_offsets(cl, float(seq.meta["needle"]["radius_mm"]))
     axes = np.meshgrid(*[grid.axis_coords(a) for a in range(grid.ndim)], indexing="ij")
     if grid.ndim == 2:
         pts = np.stack([axes[1].ravel(), np.zeros(axes[0].size), axes[0].ravel()], -1)
     else:
         pts = np.stack([axes[2].ravel(), axes[1].ravel(), axes[0].ravel()], -1)
-    d = synth.distance_to_polyline(pts, np.asarray(seq.centerline_mm[i], float))
+    d = synth.distance_to_polyline(pts, cl)
     return d.reshape(grid.shape)
 
 
@@ -78,7 +84,7 @@ def evaluate_model(modality: str, source: LearnedFeatures, n_sequences: int, fra
             t0 = time.perf_counter()
             lk = source.likelihood(Frame(seq.images[i], g))
             lat.append((time.perf_counter() - t0) * 1e3)
-            d = _distances(seq, i, g)
+            d = _distances(seq, i, g, wall=source.target_reference == "wall")
             valid = np.ones(g.shape, bool)
             if seq.ndim == 3:
                 valid = seq.images[i] > 0  # inside the sector
