@@ -137,6 +137,17 @@ def log_compress(envelope: np.ndarray, params: ImagingParams) -> np.ndarray:
     return np.clip(np.rint(gray), 0, 255).astype(np.uint8)
 
 
+def _key(a) -> bytes:
+    """Cache key of a transform (or part of one): rounded to 1e-9 and with -0.0 made 0.0, so
+    that the same pose computed two ways (e.g. an inverse of an inverse) gives the same key."""
+    return (np.round(np.asarray(a, float), 9) + 0.0).tobytes()
+
+
+def _field_key(R, tz) -> bytes:
+    """Key of a plane probe's tissue field: the rotation and the depth offset it is exact for."""
+    return _key(R) + _key(tz)
+
+
 def _blur_axis(arr: np.ndarray, axis: int, sigma_rows: np.ndarray) -> np.ndarray:
     """Gaussian blur of a (..., 2) array along ``axis`` with a sigma (px) that varies with row.
 
@@ -198,10 +209,17 @@ class Scanner:
     The tissue echo of a given tissue-to-probe transform is cached: when neither the probe
     nor the tissue moved since the last frame (a static probe watching an insertion), only
     the needle, the shadow and the electronic noise are formed again.
+
+    ``field_cache_size``: how many 3D tissue fields of a plane probe (see :meth:`prepare`)
+    are kept, most recently built first; a field built on demand pushes the oldest out. A
+    servo loop that prepares many fields along a long path raises it (the attribute may be
+    changed at any time; it applies at the next on-demand build).
     """
 
-    def __init__(self, probe, params: ImagingParams, world: World, zhao_mode: bool = False):
+    def __init__(self, probe, params: ImagingParams, world: World, zhao_mode: bool = False,
+                 field_cache_size: int = 8):
         self.probe = probe
+        self.field_cache_size = field_cache_size
         self.params = params
         self.world = world
         self.zhao_mode = zhao_mode
@@ -244,6 +262,16 @@ class Scanner:
         self._noise_row_scale = self._rows_view(
             (self._noise_sigma * self._row_gain_noise).astype(np.float32))
 
+    @property
+    def field_cache_size(self) -> int:
+        return self._field_cache_size
+
+    @field_cache_size.setter
+    def field_cache_size(self, n: int) -> None:
+        if isinstance(n, bool) or int(n) != n or n < 1:
+            raise ValueError(f"field_cache_size must be a positive integer, got {n!r}")
+        self._field_cache_size = int(n)
+
     # -- tissue -------------------------------------------------------------------------
     def _rows_view(self, v: np.ndarray) -> np.ndarray:
         return v.reshape((-1,) + (1,) * (len(self._shape) - 1) + (1,))
@@ -259,7 +287,7 @@ class Scanner:
         else is imaged directly from the scatterers.
         """
         M = np.asarray(tissue_to_probe, float)
-        key = np.round(M, 9).tobytes()
+        key = _key(M)
         if key == self._cache_key:
             return self._cache_iq
         last = self._last_M
@@ -306,7 +334,7 @@ class Scanner:
         dx = g.spacing_mm[1]
         nx = g.shape[1]
         tx, ty = M[0, 3], M[1, 3]
-        rkey = np.round(M[:3, :3], 9).tobytes() + np.round(M[2, 3], 9).tobytes()
+        rkey = _field_key(M[:3, :3], M[2, 3])
         x_need = (g.origin_mm[1] - tx, g.origin_mm[1] - tx + nx * dx)
         y = -ty  # the image plane sits at elevation -t_y of the reference field
         f = None
@@ -320,7 +348,7 @@ class Scanner:
             f = self._build_field(M[:3, :3], M[2, 3], x_need[0] - self._PAD_MM,
                                   x_need[1] + self._PAD_MM, y0, y0 + self._CHUNK_MM)
             self._fields.insert(0, f)
-            del self._fields[8:]
+            del self._fields[self.field_cache_size:]
         data, dy = f["data"], f["dy"]
         # elevation: linear interpolation between the two nearest planes
         fy = (y - f["y_plane0"]) / dy
@@ -384,7 +412,7 @@ class Scanner:
         gain = self._row_gain_signal * np.sqrt(2.0 * np.pi) * np.sqrt(
             np.maximum((self._sig_el_mm / dy) ** 2, _SPLAT_VAR))
         data *= gain.reshape(-1, 1, 1, 1).astype(np.float32)
-        return {"key": np.round(R, 9).tobytes() + np.round(tz, 9).tobytes(), "data": data,
+        return {"key": _field_key(R, tz), "data": data,
                 "dy": dy, "y_plane0": y_plane0, "x_col0": x_col0,
                 "x_lo": x_col0 + mx * dx, "x_hi": x_col0 + (nxf - 1 - mx) * dx,
                 "y_lo": y_plane0 + my * dy, "y_hi": y_plane0 + (nyf - 1 - my) * dy}

@@ -14,7 +14,7 @@ def _commands():
 
 def test_readme_starts_with_install_and_test_commands():
     install, test = _commands()[:2]
-    assert "pip install ." in install and "needlenet " in install
+    assert "pip install ." in install and "needlenet demo" in install
     assert "pytest" in test
 
 

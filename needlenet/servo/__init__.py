@@ -11,9 +11,14 @@ quick=False, progress=None, traces=None) -> list[dict]``
     default), ``"learned"`` (the shipped axial ONNX model, or ``model``) or ``"classical"``
     (Carriere's variance image), the last two imaging the world from the probe's pose each
     frame (3 repeats by default). Keys: ``gain, filter, features, rmse_p_mm, rmse_vx_mm_s,
-    rmse_pux_mm, rmse_puy_mm, lead_lag_ratio, behind_fraction, in_plane_fraction`` (probe
-    behind the tip with the crossing inside the image), ``detected_fraction``,
-    ``rmse_p_xyz_mm``, ``reach_mm`` (the detector's calibrated reach ahead of the tip),
+    rmse_pux_mm, rmse_puy_mm, lead_lag_ratio`` (frames with the probe ahead of the tip /
+    frames behind it, Ye's Table 2), ``behind_fraction`` (frames with the probe behind the
+    tip), ``in_plane_fraction`` (frames with the tip inside the imaged slice: |p_x - p_ux| <=
+    half the -6 dB elevation width of the scanner's pulse-echo PSF at the tip's depth; for
+    ``ideal`` the servo world's scanner with the probe 10 mm above the tip's start),
+    ``detected_fraction`` (frames counted as detected by eq. (13)), ``rmse_p_xyz_mm``,
+    ``reach_mm`` (where the calibrated detector stops finding the needle, mm ahead of the tip
+    on the calibration worlds; ~0), ``echo_threshold`` (the calibrated acceptance level),
     ``latency_median_ms, latency_p99_ms`` (per cycle without imaging),
     ``latency_with_imaging_median_ms, latency_with_imaging_p99_ms``, ``setup_s``,
     ``safety_stops``, ``frames``, ``repeats``, ``seed`` and Ye's figures as ``paper_*``.
@@ -55,12 +60,18 @@ from ._chatelain import (
     run_chatelain,
 )
 from ._images import (
+    CALIBRATION_SEEDS,
     CrossSectionDetector,
+    DetectorCalibration,
+    EchoThreshold,
     ServoImaging,
     ServoWorld,
+    calibrate_detector,
     calibrate_reach,
+    in_slice,
     make_detector,
     servo_world,
+    slice_half_width_mm,
 )
 from ._plot import plot_runs
 from ._ye import (
@@ -78,11 +89,12 @@ from ._ye import (
 )
 
 __all__ = [
-    "CHATELAIN_REST", "FEATURES_2D", "FEATURES_3D", "FILTERS", "GAINS", "RUNS_3D", "SCENARIOS",
-    "YE_TABLE2", "ChatelainConfig", "ClosedLoopResult", "CrossSectionDetector",
-    "MassDamperAxis", "Measurement", "PositionPD", "ServoImaging", "ServoWorld", "SpeedGain",
-    "VelocityPI", "YeServoConfig", "calibrate_reach", "chatelain_features", "check_options",
-    "control_velocity", "interaction_matrix", "make_detector", "move_probe", "plot_runs",
-    "run_chatelain", "run_closed_loop", "run_ye", "servo_rows", "servo_world", "table2",
-    "ye_insertion_velocity", "ye_tip_path",
+    "CALIBRATION_SEEDS", "CHATELAIN_REST", "FEATURES_2D", "FEATURES_3D", "FILTERS", "GAINS",
+    "RUNS_3D", "SCENARIOS", "YE_TABLE2", "ChatelainConfig", "ClosedLoopResult",
+    "CrossSectionDetector", "DetectorCalibration", "EchoThreshold", "MassDamperAxis",
+    "Measurement", "PositionPD", "ServoImaging", "ServoWorld", "SpeedGain", "VelocityPI",
+    "YeServoConfig", "calibrate_detector", "calibrate_reach", "chatelain_features",
+    "check_options", "control_velocity", "in_slice", "interaction_matrix", "make_detector",
+    "move_probe", "plot_runs", "run_chatelain", "run_closed_loop", "run_ye", "servo_rows",
+    "servo_world", "slice_half_width_mm", "table2", "ye_insertion_velocity", "ye_tip_path",
 ]

@@ -123,23 +123,12 @@ class ChatelainConfig:
 
 
 def _move_tracker_frame(tracker, D: np.ndarray) -> None:
-    """Carry the chatelain tracker's Kalman state (control points and their velocities, probe
-    frame) into the probe frame after the probe moved by D (new = old @ D). Uses the
-    tracker's private state: the tracker has no public hook for a moving probe."""
-    kf = getattr(tracker, "_kf", None)
-    Dinv = np.linalg.inv(D)
-    R, t = Dinv[:3, :3], Dinv[:3, 3]
-    if kf is not None:
-        n3 = len(kf.x) // 2
-        n = n3 // 3
-        pos = kf.x[:n3].reshape(n, 3) @ R.T + t
-        vel = kf.x[n3:].reshape(n, 3) @ R.T
-        kf.x = np.r_[pos.reshape(-1), vel.reshape(-1)]
-        B = np.kron(np.eye(2 * n), R)
-        kf.P = B @ kf.P @ B.T
-    pending = getattr(tracker, "_pending", None)
-    if pending is not None:
-        tracker._pending = (R @ pending[0] + t, pending[1])
+    """Carry the tracker's state into the probe frame after the probe moved by D (new = old @
+    D), through its public ``move_frame`` (:meth:`VolumeTracker.move_frame`); a tracker
+    without one (e.g. a test double that keeps no state) is left as it is."""
+    move = getattr(tracker, "move_frame", None)
+    if move is not None:
+        move(D)
 
 
 def _world(cfg: ChatelainConfig, run: str, seed: int):

@@ -31,6 +31,17 @@ the noise). When not detected the EKF only predicts (the paper says z_x at such 
 "copies the value at the previous sample"; a held measurement would pull the estimate back, so
 we skip the update instead).
 
+Images (``measure``; see ``_images``). A detector that sees through an elevation beam of
+finite thickness cannot tell, from one frame, a plane just ahead of the tip (the shaft still
+inside the beam) from one far behind it (the shaft alone): both show a needle echo without the
+tip's. Near the tip the echo is brighter, which the detector's calibrated threshold uses to
+report "detected" only while the plane is behind the tip; the remaining case
+(``Measurement.shaft_seen``) is resolved with the EKF's prediction: the plane is behind the
+tip when the predicted p_x lies more than ``behind_margin_mm`` ahead of the probe. Then K_e
+counts the frame as detected (eq. (13): the plane lags the tip, speed up), but the EKF gets no
+update: z_x = p_ux is a lower bound there, not a measurement. Ye's control laws (eqs.
+(13)-(19)) are unchanged; only the binary input of eq. (13) is formed from images.
+
 Lead-lag ratio (Table 2). The paper's values (0.07-0.18) come with "all methods allow the
 ultrasound probe to be located behind the tip most of the time", so the ratio is
 (frames with the probe ahead of the tip) / (frames with it behind); small is mostly behind.
@@ -38,7 +49,8 @@ ultrasound probe to be located behind the tip most of the time", so the ratio is
 
 Safety (section 5 asks for it; not in the paper's simulation): per-cycle velocity and
 acceleration limits on each probe axis (the PI stops integrating while limited), and a latched
-stop when the needle has not been detected for longer than ``lost_timeout_s``: the X reference
+stop when no needle has been seen in the image (detected, or for images a shaft seen) for longer
+than ``lost_timeout_s``: the X reference
 becomes 0 and Y holds its position; the stop is logged in ``events``, never raised.
 """
 
@@ -345,12 +357,15 @@ class SpeedGain:
 
 class Measurement(NamedTuple):
     """One frame's measurement for :func:`run_ye`: whether the needle was detected, z (3,)
-    in world mm (z_x from the probe's position, section 4.2) and the scanner's imaging time
-    spent to get it (excluded from the loop's own latency)."""
+    in world mm (z_x from the probe's position, section 4.2), the scanner's imaging time
+    spent to get it (excluded from the loop's own latency) and ``shaft_seen``: not detected,
+    but a needle echo too weak for the plane to be at the tip was seen (see
+    ``YeServoConfig.behind_margin_mm``)."""
 
     detected: bool
     z: np.ndarray | None = None
     imaging_s: float = 0.0
+    shaft_seen: bool = False
 
 
 @dataclass(frozen=True)
@@ -388,6 +403,10 @@ class YeServoConfig:
     p0_diag: tuple[float, ...] = (1e-2, 1e-2, 1e-2, 1e-4, 1e-4)
     ekf: YeEKFParams = YeEKFParams()
     probe_z_mm: float = 0.0  # the probe's fixed Z (world); Ye moves it in X and Y only
+    # images only (Measurement.shaft_seen): a needle echo with the tip's echo gone is the
+    # shaft either just ahead of the tip (inside the elevation beam) or far behind it; it
+    # counts as detected for K_e when the EKF's predicted tip is this far ahead of the plane
+    behind_margin_mm: float = 0.75
 
 
 def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, seed: int = 0,
@@ -433,6 +452,7 @@ def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, see
     pd = PositionPD(ax_y, cfg.kp2, cfg.kd, cfg.steps_per_frame, vl, al)
     ke = SpeedGain(gain)
     lost_limit = int(math.floor(cfg.lost_timeout_s * fs))
+    unseen = 0  # consecutive frames without any needle in the image
 
     est = np.empty((n, 3))
     vx_hat = np.empty(n)
@@ -457,16 +477,27 @@ def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, see
         det = det and (lost_from_frame is None or k < lost_from_frame)
         if k > 0:
             ekf.predict(v_in[k - 1])
+        if (measure is not None and not det and m.shaft_seen
+                and (lost_from_frame is None or k < lost_from_frame)
+                and ekf.x[0] - ax_x.p > cfg.behind_margin_mm):
+            # the shaft crosses a plane well behind the predicted tip: detected for eq. (13),
+            # but z_x = probe X would drag the estimate back, so no update
+            det, z = True, None
         detected[k] = det
-        if det:
+        if det and z is not None:
             accepted[k] = ekf.update(np.asarray(z, float)).accepted
         est[k] = ekf.x[:3]
         vx_hat[k] = model.velocity(ekf.x, v_in[k])[0]
         K_e[k] = ke.update(det)
-        if not stopped and ke.t1 > lost_limit:
+        # lost: no needle in the image at all (a shaft seen with the plane at the tip is the
+        # loop working, not a loss)
+        seen = det or (measure is not None and m.shaft_seen
+                       and (lost_from_frame is None or k < lost_from_frame))
+        unseen = 0 if seen else unseen + 1
+        if not stopped and unseen > lost_limit:
             stopped, y_hold = True, ax_y.p
             events.append({"event": "safety_stop", "reason": "needle_lost", "frame": k,
-                           "time_s": k / fs, "lost_for_s": ke.t1 / fs})
+                           "time_s": k / fs, "lost_for_s": unseen / fs})
         if stopped:
             pi.run(0.0)
             pd.run(y_hold)

@@ -747,6 +747,70 @@ class VolumeTracker(Tracker):
         self._pending: tuple[np.ndarray, int] | None = None  # chatelain: detection, volumes left
         self._misses = 0
 
+    def move_frame(self, D) -> None:
+        """Re-express the tracker's state in the probe frame after the probe moved.
+
+        ``D`` (4, 4) is the rigid motion of the probe: new pose = old pose @ D, so a point p
+        of the old probe frame is ``inv(D) @ p`` in the new one. The Kalman state follows:
+        chatelain's control points (positions transformed, velocities rotated) and roi-rk's
+        tip (transformed), tip velocity (rotated) and axis angles (beta, alpha of Zhao eq. (4)
+        recomputed from the rotated direction; their rates and covariance carried by the
+        Jacobian of that map); the covariance is B P B^T with B that linear map. A pending
+        chatelain detection moves with it. What compares two volumes voxel by voxel (roi-rk's
+        speckle tracking, chatelain's change map) needs both from the same pose, so a
+        non-trivial motion drops the previous volume: the next one starts afresh. ransac keeps
+        no state. A bad ``D`` raises ``ValueError``.
+        """
+        D = np.asarray(D, float)
+        if D.shape != (4, 4) or not np.all(np.isfinite(D)):
+            raise ValueError(f"move_frame needs a finite 4x4 rigid transform, got shape "
+                             f"{D.shape}")
+        R0 = D[:3, :3]
+        if (not np.allclose(R0.T @ R0, np.eye(3), atol=1e-6) or np.linalg.det(R0) <= 0
+                or not np.allclose(D[3], [0.0, 0.0, 0.0, 1.0])):
+            raise ValueError("move_frame needs a rigid transform (a rotation and a "
+                             "translation, last row 0 0 0 1)")
+        if np.allclose(D, np.eye(4), atol=1e-12):
+            return
+        R = R0.T  # inv(D): p_new = R p_old + t
+        t = -R @ D[:3, 3]
+        kf = self._kf
+        if kf is not None and self.method == "chatelain":
+            n3 = len(kf.x) // 2
+            n = n3 // 3
+            pos = kf.x[:n3].reshape(n, 3) @ R.T + t
+            vel = kf.x[n3:].reshape(n, 3) @ R.T
+            kf.x = np.r_[pos.reshape(-1), vel.reshape(-1)]
+            B = np.kron(np.eye(2 * n), R)
+            kf.P = B @ kf.P @ B.T
+        elif kf is not None and self.method == "roi-rk":
+            # x = [beta, alpha, beta', alpha', tip (3), tip velocity (3)] (Zhao eqs. (2)-(3))
+            x = kf.x
+            ang = np.asarray(x[:2], float)
+
+            def new_angles(a):
+                b, al = _angles(R @ angles_to_direction(a[0], a[1]))
+                return np.array([b, float(x[1]) + _wrap(al - float(x[1]))])
+
+            a_new = new_angles(ang)
+            J = np.empty((2, 2))
+            h = 1e-6
+            for j in range(2):
+                e = np.zeros(2)
+                e[j] = h
+                J[:, j] = (new_angles(ang + e) - new_angles(ang - e)) / (2 * h)
+            B = np.zeros((10, 10))
+            B[:2, :2] = J
+            B[2:4, 2:4] = J
+            B[4:7, 4:7] = R
+            B[7:10, 7:10] = R
+            kf.x = np.r_[a_new, J @ x[2:4], R @ x[4:7] + t, R @ x[7:10]]
+            kf.P = B @ kf.P @ B.T
+        if self._pending is not None:
+            self._pending = (R @ self._pending[0] + t, self._pending[1])
+        self._prev_image = None
+        self._prev_map = None
+
     @property
     def _learned(self) -> bool:
         return getattr(self.features, "kind", "classical") == "learned"
