@@ -160,7 +160,11 @@ class VolumeTrackerParams:
         the profile stretches by about 0.1 mm more (measured on 128^3 CR 4.7 volumes: the
         median error along the axis is then 0). 0.6 mm.
     likelihood_threshold : float
-        For learned features: likelihood above which a voxel is needle (candidates and tip).
+        For learned features: likelihood above which a voxel is needle (candidates and tip)
+        when ``likelihood_relative`` is None.
+    likelihood_relative : float or None
+        For learned features: the tip is where the likelihood along the axis drops below this
+        fraction of its median over the fitted needle (default a half-maximum).
     likelihood_floor : float
         For learned features: voxels below this never become weighted candidates.
     max_candidates : int
@@ -251,6 +255,7 @@ class VolumeTrackerParams:
     tip_cap_mm: float = 0.6
     likelihood_threshold: float = 0.5
     likelihood_floor: float = 0.05
+    likelihood_relative: float | None = 0.5
     max_candidates: int = 20_000
     # roi-rk
     roi_radius_mm: float = 2.5
@@ -619,7 +624,17 @@ def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
         if flip:
             fitted = fitted.oriented(-u)
             a0, a1, n_in = _main_piece(fitted.parameter(pts[res.inliers]), p.max_gap_mm)
-    level = p.likelihood_threshold if vol.learned else threshold
+    level = threshold
+    if vol.learned:
+        level = p.likelihood_threshold
+        if p.likelihood_relative is not None:
+            # the needle's own likelihood sets the level (a half-maximum): a learned map's
+            # absolute scale varies with the contrast and the scanner, its drop at the tip
+            # does not
+            step = 0.5 * float(vol.spacing.min())
+            a_in = np.arange(a0, a1 + step, step)
+            on = _profile(vol, fitted, a_in, p.profile_radius_mm)
+            level = max(p.likelihood_floor, p.likelihood_relative * float(np.median(on)))
     found = _locate(vol, fitted, a0, a1, level, p, r_in)
     if found is None:
         return _fail("no sample of the axis reaches the threshold", res.n_trials, roi_voxels,
