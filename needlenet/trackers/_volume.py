@@ -169,6 +169,12 @@ class VolumeTrackerParams:
         For learned features: voxels below this never become weighted candidates.
     max_candidates : int
         For learned features: at most this many candidates (the most likely ones) are kept.
+    tip_window_mm, tip_min : float
+        For learned features with a tip channel: the tip is moved to the tip map's maximum
+        along the axis within this distance of the shaft's drop, when that maximum reaches
+        ``tip_min``. Off by default (0): the shipped 3D model's tip channel puts the tip
+        within 1 mm in only 15% of held-out frames, and measured on Zhao's Table 2 volumes
+        it moved the median tip error from 0.55-0.67 mm to 0.77-1.6 mm.
 
     Zhao 2013 ROI-RK
     ----------------
@@ -257,6 +263,8 @@ class VolumeTrackerParams:
     likelihood_floor: float = 0.05
     likelihood_relative: float | None = 0.5
     max_candidates: int = 20_000
+    tip_window_mm: float = 0.0
+    tip_min: float = 0.3
     # roi-rk
     roi_radius_mm: float = 2.5
     max_axis_jump_deg: float = 15.0
@@ -301,7 +309,7 @@ class VolumeTrackerParams:
                 raise ValueError(f"VolumeTrackerParams.{name} must be finite and > 0, "
                                  f"got {value}")
         for name in ("min_sample_distance_mm", "max_gap_mm", "speckle_search_mm",
-                     "voi_margin_mm", "tip_cap_mm", "entry_margin_mm"):
+                     "voi_margin_mm", "tip_cap_mm", "entry_margin_mm", "tip_window_mm"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"VolumeTrackerParams.{name} must be finite and >= 0, "
@@ -345,6 +353,11 @@ class _Volume:
         self.origin = np.asarray(self.grid.origin_mm, float)
         self.shape = np.asarray(self.grid.shape)
         self.values = np.asarray(likelihood.shaft, dtype=np.float32)
+        # a learned source's tip channel (None for classical features, or an all-zero map)
+        tip = getattr(likelihood, "tip", None)
+        self.tip = (np.asarray(tip, dtype=np.float32)
+                    if learned and tip is not None and np.shape(tip) == self.values.shape
+                    else None)
         self.learned = learned
         self.sector = self.image > 0  # scan-converted volumes are 0 outside the sector
 
@@ -659,6 +672,8 @@ def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
             if again is not None:
                 fitted, (a_entry, a_drop) = refit, again
     a_tip = a_drop - p.tip_cap_mm  # the image of the needle ends one cap beyond its tip
+    if vol.tip is not None and p.tip_window_mm > 0:
+        a_tip = _tip_on_map(vol, fitted, a_entry, a_tip, p)
     length = a_tip - a_entry
     if length < p.min_length_mm:
         return _fail(f"needle too short: {length:.2f} mm < {p.min_length_mm} mm", res.n_trials,
@@ -670,6 +685,31 @@ def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
     gap = _distance_to_boundary(vol, entry, -direction, far, 0.5 * float(vol.spacing.min()))
     return _Measurement(True, None, fitted, entry, tip, direction, n_inliers, res.n_trials,
                         roi_voxels, a_entry, a_tip, gap)
+
+
+def _tip_on_map(vol: _Volume, fitted, a_entry: float, a_tip: float,
+                p: VolumeTrackerParams) -> float:
+    """The tip along the fitted axis from a learned tip channel: the maximum of the tip map
+    (over the needle's cross-section, as :func:`_profile`) within ``tip_window_mm`` of the
+    tip where the shaft likelihood drops, refined by a parabola through its neighbours. The
+    drop stands when the tip map has no clear peak there (below ``tip_min``)."""
+    step = 0.5 * float(vol.spacing.min())
+    a = np.arange(max(a_tip - p.tip_window_mm, a_entry), a_tip + p.tip_window_mm + step, step)
+    if a.size < 3:
+        return a_tip
+    centre = fitted.points_at(a)
+    e1, e2 = _perpendiculars(fitted.principal_direction)
+    offsets = p.profile_radius_mm * (_PROFILE_OFFSETS[:, :1] * e1 + _PROFILE_OFFSETS[:, 1:] * e2)
+    prof = vol.sample(vol.tip, centre[None] + offsets[:, None]).max(axis=0)
+    k = int(np.argmax(prof))
+    if prof[k] < p.tip_min:
+        return a_tip
+    if 0 < k < a.size - 1:
+        y0, y1, y2 = prof[k - 1], prof[k], prof[k + 1]
+        den = y0 - 2.0 * y1 + y2
+        if den < 0:
+            return float(a[k] + 0.5 * step * (y0 - y2) / den)
+    return float(a[k])
 
 
 def _between(a: np.ndarray, lo: float, hi: float) -> np.ndarray:

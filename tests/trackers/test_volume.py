@@ -301,3 +301,27 @@ def test_params_and_method_are_checked():
     with pytest.raises(ValueError, match="3D volumes"):
         tracker.update(Frame(np.arange(16, dtype=np.uint8).reshape(4, 4),
                              Grid((4, 4), (1.0, 1.0), (0.0, 0.0))))
+
+
+def test_tip_window_moves_the_tip_to_the_tip_maps_peak_along_the_axis():
+    from needlenet.backends._ransac import LineModel
+    from needlenet.trackers._volume import _tip_on_map
+
+    grid = Grid((40, 40, 60), (0.5, 0.5, 0.5), (0.0, 0.0, 0.0))
+    pts = np.stack(np.meshgrid(*[grid.axis_coords(a) for a in range(3)], indexing="ij"), -1)
+    xyz = pts[..., ::-1]  # point order (x, y, z)
+    origin, u = np.array([2.0, 10.0, 10.0]), np.array([1.0, 0.0, 0.0])
+    true_tip = origin + 17.3 * u
+    tip_map = np.exp(-0.5 * (np.linalg.norm(xyz - true_tip, axis=-1) / 1.0) ** 2)
+    image = np.full(grid.shape, 50, np.uint8)
+    lk = Likelihood(shaft=np.zeros(grid.shape, np.float32), tip=tip_map.astype(np.float32))
+    vol = _Volume(Frame(image, grid), lk, learned=True)
+    line = LineModel(origin, u)
+    p = VolumeTrackerParams(tip_window_mm=3.0)
+    # the shaft's drop put the tip 1.5 mm short: the tip map's peak moves it back
+    assert _tip_on_map(vol, line, 0.0, 15.8, p) == pytest.approx(17.3, abs=0.1)
+    # no clear peak (below tip_min): the drop stands
+    weak = _Volume(Frame(image, grid), Likelihood(shaft=lk.shaft, tip=0.2 * lk.tip), True)
+    assert _tip_on_map(weak, line, 0.0, 15.8, p) == 15.8
+    # classical features carry no tip map
+    assert _Volume(Frame(image, grid), lk, learned=False).tip is None

@@ -8,7 +8,13 @@ pytest.importorskip("lightning")
 pytest.importorskip("onnx")
 
 import synth  # noqa: E402
-from training.data import DataConfig, make_targets, sample_from_sequence  # noqa: E402
+from training.data import (  # noqa: E402
+    DataConfig,
+    make_targets,
+    prepare_frame,
+    sample_from_sequence,
+    simplify_polyline,
+)
 from training.export import ExportError, export_onnx, load_checkpoint  # noqa: E402
 from training.module import shaft_auc, tip_error_mm  # noqa: E402
 from training.networks import NeedleNet2D, NeedleNet3D  # noqa: E402
@@ -51,6 +57,48 @@ def test_wall_targets_sit_on_the_echo_a_radius_above_the_centre_line():
     idx = np.rint(g.points_to_index(pts)).astype(int)
     assert offs[np.argmax(y[0][idx[:, 0], idx[:, 1]])] == pytest.approx(r, abs=0.1)
     assert offs[np.argmax(seq.images[1][idx[:, 0], idx[:, 1]])] == pytest.approx(r, abs=0.25)
+
+
+def test_simplified_polyline_keeps_distances_within_the_tolerance():
+    rng = np.random.default_rng(5)
+    straight = np.linspace([0.0, 0.0, 0.0], [10.0, 3.0, 20.0], 64)
+    assert len(simplify_polyline(straight, 1e-3)) == 2
+    s = np.linspace(0, 1, 64)[:, None]  # a bent needle: a circular arc of radius 60 mm
+    arc = np.c_[60 * np.sin(0.5 * s), np.zeros_like(s), 60 * (1 - np.cos(0.5 * s))]
+    for poly, tol in ((arc, 1e-3), (arc, 0.05), (straight + rng.normal(0, 0.01, (64, 3)), 0.05)):
+        simple = simplify_polyline(poly, tol)
+        assert 2 <= len(simple) <= len(poly)
+        assert tol < 0.01 or len(simple) < len(poly) / 4
+        assert np.allclose(simple[[0, -1]], poly[[0, -1]])
+        pts = rng.uniform(poly.min(0) - 3, poly.max(0) + 3, (2000, 3))
+        d_full = synth.distance_to_polyline(pts, poly)
+        d_simple = synth.distance_to_polyline(pts, simple)
+        assert np.max(np.abs(d_full - d_simple)) <= tol + 1e-9
+        # every dropped vertex lies within the tolerance of the simplified polyline
+        assert synth.distance_to_polyline(poly, simple).max() <= tol + 1e-9
+
+
+def test_targets_with_the_box_and_simplification_match_brute_force():
+    seq = synth.generate("axial", seed=4, frames=3)  # a curved needle
+    g = seq.grid()
+    out = synth.Grid(tuple(n // 2 for n in g.shape), tuple(2 * v for v in g.spacing_mm),
+                     g.origin_mm)
+    y = make_targets(seq, 2, out, reference="centerline")
+    axes = np.meshgrid(*[out.axis_coords(a) for a in range(2)], indexing="ij")
+    pts = np.stack([axes[1].ravel(), np.zeros(axes[0].size), axes[0].ravel()], -1)
+    d = synth.distance_to_polyline(pts, seq.centerline_mm[2]).reshape(out.shape)
+    sigma = max(float(seq.meta["needle"]["radius_mm"]), 0.3)
+    # distances within the 1e-3 mm tolerance; the Gaussian's slope is below 1/sigma
+    assert np.max(np.abs(y[0] - np.exp(-0.5 * (d / sigma) ** 2))) < 1e-3 / sigma
+
+
+def test_prepared_frame_gives_the_same_samples():
+    seq = synth.generate("volume", seed=6, frames=2, output_size=48)
+    cfg = DataConfig(modality="volume", crop=24, spacing_mm=0.5, normalization="median")
+    a = sample_from_sequence(seq, 1, cfg, np.random.default_rng(2))
+    b = sample_from_sequence(seq, 1, cfg, np.random.default_rng(2),
+                             prepared=prepare_frame(seq, 1, cfg))
+    assert all(np.array_equal(u, v) for u, v in zip(a, b, strict=True))
 
 
 def test_auc_and_tip_error_by_hand():
