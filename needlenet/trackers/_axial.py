@@ -132,8 +132,9 @@ class AxialParams:
     drift_tolerance_mm: float = 0.6  # largest correction by the first template
     detect_anchor: str = "auto"  # "top_edge", "peak"; "auto": peak for learned sources
     # learned sources with learned_template = "map": move the NCC match to the likelihood's
-    # sub-pixel maximum within one radius (a probability map says where the cross-section is; its smooth blob makes the
-    # NCC peak wander by a tenth of a millimetre from slice to slice, which the bicycle fit
+    # sub-pixel maximum within one radius (a probability map says where the cross-section
+    # is; its smooth blob makes the NCC peak wander by a tenth of a millimetre from slice
+    # to slice, which the bicycle fit
     # then extrapolates)
     learned_peak_refine: bool = True
     # learned sources: what the NCC templates are cut from. "texture": the B-mode image
