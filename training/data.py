@@ -109,17 +109,10 @@ def randomize(modality: str, rng: np.random.Generator) -> tuple[str, dict]:
             "theta0_deg": _u(rng, -3, 3),
         }
     if modality == "volume":
-        # Zhao mode (the needle at a set contrast ratio, eq. 9) in 60% of worlds, its CR
-        # log-uniform over 1.5-5 so that faint needles (CR 1.5-2.5, where thresholds fail)
-        # are 45% of them; needle-like bright distractors in half the inhomogeneous worlds
-        # (with them in every world a faint straight line is as often tissue as needle)
-        # output sizes 64-128: the sector's voxels from 0.8 mm down to 0.25-0.4 mm, so that
-        # the model sees volumes finer than its own 0.5 mm grid (downsampled, smoother
-        # speckle) as well as coarser ones
-        zhao = rng.random() < 0.6
-        vol = {**common, "output_size": int(rng.integers(64, 129)),
+        zhao = rng.random() < 0.5
+        vol = {**common, "output_size": int(rng.integers(56, 81)),
                "background": "inhomogeneous" if rng.random() < 0.85 else "homogeneous",
-               "center_frequency_mhz": _u(rng, 2.5, 5.0), "distractors": rng.random() < 0.5}
+               "center_frequency_mhz": _u(rng, 2.5, 5.0)}
         vol["imaging_overrides"] = {k: v for k, v in imaging.items()
                                     if k not in ("center_frequency_mhz",)}
         vol["imaging_overrides"]["tissue_gray"] = _u(rng, 25, 110)
@@ -128,8 +121,7 @@ def randomize(modality: str, rng: np.random.Generator) -> tuple[str, dict]:
                                      "motion_deg": _u(rng, 0, 8)}
         start = _u(rng, 0.0, 12.0)
         return "volume", {
-            **vol, "zhao_mode": zhao,
-            "cr": float(np.exp(rng.uniform(np.log(1.5), np.log(5.0)))) if zhao else None,
+            **vol, "zhao_mode": zhao, "cr": _u(rng, 1.5, 5.0) if zhao else None,
             "alpha_deg": _u(rng, 0, 90), "beta_deg": _u(rng, 55, 85),
             "start_length_mm": start, "stop_length_mm": start + _u(rng, 8, 25),
             "volume_rate_hz": 2.0,
