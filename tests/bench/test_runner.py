@@ -118,3 +118,15 @@ def test_map_peak_is_subpixel():
     z, y, x = np.meshgrid(np.arange(20), np.arange(18), np.arange(16), indexing="ij")
     m = np.exp(-((z - 7.3) ** 2 + (y - 9.6) ** 2 + (x - 4.5) ** 2) / (2 * 1.5**2))
     np.testing.assert_allclose(map_peak(m), [7.3, 9.6, 4.5], atol=0.05)
+
+
+def test_volume_cells_pool_their_sequences():
+    from needlenet.bench._trackers import _pool
+
+    s = _pool([{"failure_rate": 1.0, "tip_error_median": 2.0, "latency_p99_ms": 9.0},
+               {"failure_rate": 0.0, "tip_error_median": 1.0, "latency_p99_ms": 3.0},
+               {"failure_rate": 0.5, "tip_error_median": float("nan")}])
+    assert s["failure_rate"] == 0.5  # the mean over equally long sequences
+    assert s["tip_error_median"] == 1.5  # NaN (no estimate) left out of the median
+    assert s["latency_p99_ms"] == 6.0
+    assert s["tip_error_x_std"] is None
