@@ -150,7 +150,7 @@ def simplify_polyline(poly: np.ndarray, tol_mm: float) -> np.ndarray:
     """The vertices of ``poly`` (K, D) that Ramer-Douglas-Peucker keeps at tolerance
     ``tol_mm``: every dropped vertex lies within ``tol_mm`` of the simplified polyline, so a
     distance to it is off by at most ``tol_mm``. A straight needle's 64 centre-line samples
-    become 2 vertices (the targets' distance transform is then ~30x cheaper)."""
+    become 2 vertices (measured: in-plane targets 14 -> 3 ms per frame)."""
     poly = np.asarray(poly, float)
     if len(poly) <= 2:
         return poly

@@ -134,8 +134,7 @@ class AxialParams:
     # learned sources with learned_template = "map": move the NCC match to the likelihood's
     # sub-pixel maximum within one radius (a probability map says where the cross-section
     # is; its smooth blob makes the NCC peak wander by a tenth of a millimetre from slice
-    # to slice, which the bicycle fit
-    # then extrapolates)
+    # to slice, which the bicycle fit then extrapolates)
     learned_peak_refine: bool = True
     # learned sources: what the NCC templates are cut from. "texture": the B-mode image
     # weighted by the likelihood (the map selects the needle's echo, the echo's own speckle
