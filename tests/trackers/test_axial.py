@@ -183,14 +183,14 @@ class _PerfectLearned(FeatureSource):
         return Likelihood(shaft=blob.astype(np.float32), source=self.name)
 
 
-@pytest.mark.parametrize("template, tol", [("map", 0.1), ("texture", 0.15)])
+@pytest.mark.parametrize("template, tol", [("map", 0.1), ("texture", 0.15), ("variance", 0.15)])
 def test_learned_feature_source_is_tracked(template, tol):
     seq = _axial(7, frames=60)
     params = _params(learned_template=template)
     est = AxialTracker(features=_PerfectLearned(seq), params=params, rng=0).run(seq)
     err = [np.linalg.norm(e.tip_mm - t) for e, t in zip(est, seq.tip_mm, strict=True)]
-    # "map" follows the map's peak; "texture" matches the echo's speckle inside the map and
-    # keeps the offset of the first detection between the echo and its centre
+    # "map" follows the map's peak; "texture" and "variance" match the echo's speckle inside
+    # the map and keep the offset of the first detection between the echo and its centre
     assert max(err) < tol  # mm
     # an empty probability map is not a detection (no relative-score artefact)
     grid = seq.grid()
@@ -249,7 +249,7 @@ def test_map_fit_recovers_the_bicycle_path():
 def test_parameters_are_checked():
     with pytest.raises(ValueError, match="filter_update must be 'paper' or 'lsq'"):
         AxialParams(filter_update="ml")
-    with pytest.raises(ValueError, match="learned_template must be 'texture' or 'map'"):
+    with pytest.raises(ValueError, match="learned_template must be 'variance', 'texture' or 'map'"):
         AxialParams(learned_template="bmode")
     with pytest.raises(ValueError, match="insertion_sign"):
         AxialParams(insertion_sign=2)
