@@ -35,7 +35,8 @@ from .networks import INPUT_MULTIPLE, OUTPUT_STRIDE
 
 __all__ = ["DataConfig", "randomize", "make_targets", "target_reference", "wall_offsets",
            "SynthStream", "SynthDataModule", "sample_from_sequence", "prepare_frame",
-           "validation_set", "simplify_polyline", "INTENSITY_MEAN", "INTENSITY_STD"]
+           "validation_set", "simplify_polyline", "model_output_grid", "INTENSITY_MEAN",
+           "INTENSITY_STD"]
 
 # the "fixed" input normalisation: (uint8 / 255 - mean) / std, stored in the ONNX metadata
 INTENSITY_MEAN = NORMALIZATIONS["fixed"]["mean"]
@@ -215,6 +216,25 @@ def prepare_frame(seq, i: int, cfg: DataConfig) -> tuple[np.ndarray, float | Non
     return img, (image_level(seq.images[i]) if norm["mode"] == "median" else None)
 
 
+def model_output_grid(frame_grid: synth.Grid, model_shape, lo, size) -> synth.Grid:
+    """The grid of the network's output for the crop ``[lo, lo + size)`` of a frame resampled
+    to ``model_shape`` by :func:`to_model_grid`.
+
+    The resampler keeps pixel centres (OpenCV's half-pixel convention): model pixel j of an
+    axis with n frame pixels at spacing s resampled to N lies at frame index
+    (j + 1/2) n / N - 1/2, i.e. at ``origin + (e - s) / 2 + j e`` with the effective spacing
+    e = s n / N (the model spacing up to the rounding of N). Targets placed at
+    ``origin + j * model_spacing`` instead sat (model spacing - s) / 2 off the image on every
+    axis, 0.1-0.2 mm for the coarse training volumes. The output's stride-2 samples are
+    centred on input pixel pairs (model index 2k + 1/2)."""
+    s = np.asarray(frame_grid.spacing_mm, float)
+    e = s * np.asarray(frame_grid.shape, float) / np.asarray(model_shape, float)
+    origin = np.asarray(frame_grid.origin_mm, float) + 0.5 * (e - s)
+    out_shape = tuple(int(n) // OUTPUT_STRIDE for n in size)
+    return synth.Grid(out_shape, tuple(OUTPUT_STRIDE * e),
+                      tuple(origin + (np.asarray(lo) + 0.5 * (OUTPUT_STRIDE - 1)) * e))
+
+
 def sample_from_sequence(seq, i: int, cfg: DataConfig, rng: np.random.Generator | None,
                          crop: int | None = None, prepared=None):
     """(image (1, *S), target (2, *S/2), positive mask) at the model spacing.
@@ -248,11 +268,7 @@ def sample_from_sequence(seq, i: int, cfg: DataConfig, rng: np.random.Generator 
     if x.shape != tuple(int(n) for n in size):  # smaller than the crop: pad with edge values
         x = np.pad(x, [(0, int(n - m)) for n, m in zip(size, x.shape, strict=True)],
                    mode="edge")
-    origin = np.asarray(g.origin_mm) + lo * np.asarray(sp)
-    # output grid: stride-2 samples centred on input pixel pairs
-    out_shape = tuple(int(n) // OUTPUT_STRIDE for n in size)
-    out_grid = synth.Grid(out_shape, tuple(s * OUTPUT_STRIDE for s in sp),
-                          tuple(origin + 0.5 * (OUTPUT_STRIDE - 1) * np.asarray(sp)))
+    out_grid = model_output_grid(g, shape, lo, size)
     y = make_targets(seq, i, out_grid)
     if rng is not None:
         for ax in range(1, g.ndim):  # lateral (and elevation) flips keep the physics

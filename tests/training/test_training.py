@@ -92,6 +92,28 @@ def test_targets_with_the_box_and_simplification_match_brute_force():
     assert np.max(np.abs(y[0] - np.exp(-0.5 * (d / sigma) ** 2))) < 1e-3 / sigma
 
 
+def test_target_grid_is_where_the_resampler_puts_the_pixels():
+    # a frame whose grey level is its own coordinate along one axis (a ramp, which linear
+    # resampling keeps exactly away from the borders): after to_model_grid, each model pixel
+    # says where it lies, and the output grid must agree (an output sample is centred on an
+    # input pixel pair)
+    from needlenet.features._resample import to_model_grid
+    from training.data import model_output_grid
+
+    g = synth.Grid((37, 29, 23), (0.78, 0.55, 0.37), (5.0, -8.0, -4.0))
+    lo, size = np.array([2, 4, 6]), np.array([16, 12, 8])
+    for ax in range(3):
+        ramp = np.broadcast_to(g.axis_coords(ax).reshape([-1 if a == ax else 1
+                                                          for a in range(3)]), g.shape)
+        m = to_model_grid(ramp.astype(np.float32), g.spacing_mm, (0.5,) * 3)
+        out = model_output_grid(g, m.shape, lo, size)
+        crop = m[tuple(slice(a, a + n) for a, n in zip(lo, size, strict=True))]
+        pairs = 0.5 * (np.take(crop, np.arange(0, size[ax], 2), ax)
+                       + np.take(crop, np.arange(1, size[ax], 2), ax))
+        along = np.moveaxis(pairs, ax, 0)[:, 0, 0]
+        np.testing.assert_allclose(along[1:-1], out.axis_coords(ax)[1:-1], atol=1e-4)
+
+
 def test_prepared_frame_gives_the_same_samples():
     seq = synth.generate("volume", seed=6, frames=2, output_size=48)
     cfg = DataConfig(modality="volume", crop=24, spacing_mm=0.5, normalization="median")
