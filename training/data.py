@@ -223,10 +223,9 @@ def model_output_grid(frame_grid: synth.Grid, model_shape, lo, size) -> synth.Gr
     The resampler keeps pixel centres (OpenCV's half-pixel convention): model pixel j of an
     axis with n frame pixels at spacing s resampled to N lies at frame index
     (j + 1/2) n / N - 1/2, i.e. at ``origin + (e - s) / 2 + j e`` with the effective spacing
-    e = s n / N (the model spacing up to the rounding of N). Targets placed at
-    ``origin + j * model_spacing`` instead sat (model spacing - s) / 2 off the image on every
-    axis, 0.1-0.2 mm for the coarse training volumes. The output's stride-2 samples are
-    centred on input pixel pairs (model index 2k + 1/2)."""
+    e = s n / N (the model spacing up to the rounding of N), not at ``origin + j * model
+    spacing`` (off by up to 0.2 mm on coarse training volumes). The output's stride-2 samples
+    are centred on input pixel pairs (model index 2k + 1/2)."""
     s = np.asarray(frame_grid.spacing_mm, float)
     e = s * np.asarray(frame_grid.shape, float) / np.asarray(model_shape, float)
     origin = np.asarray(frame_grid.origin_mm, float) + 0.5 * (e - s)
