@@ -57,14 +57,32 @@ class DataConfig:
     val_seed: int = 10_000_000  # validation worlds: seeds never used in training
     crops_per_frame: int = 1  # several random crops of one simulated frame (costly volumes)
     normalization: str = "fixed"  # a key of needlenet.features._resample.NORMALIZATIONS
+    # volumes only: the share of worlds in Zhao mode (needle voxels drawn at a contrast ratio,
+    # Zhao eq. 9) and the range of that ratio, drawn uniformly or (cr_log) log-uniformly
+    zhao_fraction: float = 0.5
+    cr_range: tuple[float, float] = (1.5, 5.0)
+    cr_log: bool = False
 
 
 def _u(rng, a, b):
     return float(rng.uniform(a, b))
 
 
-def randomize(modality: str, rng: np.random.Generator) -> tuple[str, dict]:
-    """Every random choice of one training world: (scenario name, scenario overrides)."""
+def _draw_cr(rng: np.random.Generator, cfg: DataConfig) -> float:
+    lo, hi = (float(v) for v in cfg.cr_range)
+    if not 1.05 <= lo <= hi <= 10.0:
+        raise ValueError(f"cr_range must satisfy 1.05 <= low <= high <= 10, got {cfg.cr_range}")
+    if cfg.cr_log:
+        return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    return _u(rng, lo, hi)
+
+
+def randomize(modality: str, rng: np.random.Generator,
+              cfg: DataConfig | None = None) -> tuple[str, dict]:
+    """Every random choice of one training world: (scenario name, scenario overrides).
+    ``cfg`` supplies the volume worlds' Zhao-mode share and contrast range (defaults of
+    :class:`DataConfig` when None)."""
+    cfg = cfg or DataConfig(modality=modality)
     imaging = {
         "center_frequency_mhz": _u(rng, 3.5, 10.0), "fractional_bandwidth": _u(rng, 0.4, 0.9),
         "f_number": _u(rng, 1.3, 3.0), "tx_focus_mm": _u(rng, 10, 40),
@@ -110,7 +128,7 @@ def randomize(modality: str, rng: np.random.Generator) -> tuple[str, dict]:
             "theta0_deg": _u(rng, -3, 3),
         }
     if modality == "volume":
-        zhao = rng.random() < 0.5
+        zhao = rng.random() < cfg.zhao_fraction
         vol = {**common, "output_size": int(rng.integers(56, 81)),
                "background": "inhomogeneous" if rng.random() < 0.85 else "homogeneous",
                "center_frequency_mhz": _u(rng, 2.5, 5.0)}
@@ -122,7 +140,7 @@ def randomize(modality: str, rng: np.random.Generator) -> tuple[str, dict]:
                                      "motion_deg": _u(rng, 0, 8)}
         start = _u(rng, 0.0, 12.0)
         return "volume", {
-            **vol, "zhao_mode": zhao, "cr": _u(rng, 1.5, 5.0) if zhao else None,
+            **vol, "zhao_mode": zhao, "cr": _draw_cr(rng, cfg) if zhao else None,
             "alpha_deg": _u(rng, 0, 90), "beta_deg": _u(rng, 55, 85),
             "start_length_mm": start, "stop_length_mm": start + _u(rng, 8, 25),
             "volume_rate_hz": 2.0,
@@ -290,7 +308,7 @@ class SynthStream(IterableDataset):
         rng = np.random.default_rng([self.cfg.seed, wid])
         buf: list = []
         while True:
-            name, kw = randomize(self.cfg.modality, rng)
+            name, kw = randomize(self.cfg.modality, rng, self.cfg)
             seed = int(rng.integers(0, self.cfg.val_seed))  # never a validation seed
             try:
                 seq = synth.generate(name, seed=seed, frames=self.cfg.frames_per_world, **kw)
@@ -313,7 +331,7 @@ def validation_set(cfg: DataConfig, n_frames: int | None = None, cr: float | Non
     out = []
     k = 0
     while len(out) < n:
-        name, kw = randomize(cfg.modality, rng)
+        name, kw = randomize(cfg.modality, rng, cfg)
         kw["background"] = background
         if cr is not None and name == "volume":
             kw.update(zhao_mode=True, cr=cr)

@@ -56,7 +56,9 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[nn.Module, dict]:
     for k, v in state.items():
         if k.startswith("stem.0.weight"):
             width = int(v.shape[0])
-    net = build_network(hp["modality"], width)
+    refine = len({k.split(".")[1] for k in state if k.startswith("refine.")})
+    taps = int(state["oriented.n_taps"]) if "oriented.n_taps" in state else 0
+    net = build_network(hp["modality"], width, refine, taps)
     net.load_state_dict(state)
     net.eval()
     return net, hp

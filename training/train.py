@@ -28,6 +28,10 @@ class TrainConfig:
     steps: int = 1500
     lr: float = 3e-3
     width: int | None = None
+    refine_blocks: int = 0  # a refinement stage of this many blocks (0: none)
+    oriented_taps: int = 0  # one-sided sums along 13 directions in the refinement (0: none)
+    tip_softmax_weight: float = 0.0  # weight of training.module.tip_softmax_loss (0: off)
+    pos_weight: tuple[float, float] = (20.0, 50.0)  # BCE weight of positives: shaft, tip
     out_dir: str = "runs/inplane"
     val_every: int = 250
     threads: int = 1  # the trainer's torch threads; the data worker has the other core
@@ -71,11 +75,14 @@ def train(config: TrainConfig) -> dict:
     torch.manual_seed(config.data.seed)
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    net = build_network(config.modality, config.width)
+    net = build_network(config.modality, config.width, config.refine_blocks,
+                        config.oriented_taps)
     module = LikelihoodModule(net, config.modality, config.data.spacing_mm, lr=config.lr,
                               max_steps=config.steps,
                               target_reference=target_reference(config.modality),
-                              normalization=config.data.normalization)
+                              normalization=config.data.normalization,
+                              tip_softmax_weight=config.tip_softmax_weight,
+                              pos_weight=tuple(config.pos_weight))
     dm = SynthDataModule(config.data)
     ckpt = ModelCheckpoint(dirpath=out, filename="last", save_last=False, every_n_train_steps=
                            max(config.val_every, 1), save_top_k=1)

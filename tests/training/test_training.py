@@ -165,7 +165,9 @@ def _random_bn(net):
     return net
 
 
-@pytest.mark.parametrize("modality,net", [("inplane", NeedleNet2D), ("volume", NeedleNet3D)])
+@pytest.mark.parametrize("modality,net", [
+    ("inplane", NeedleNet2D), ("volume", NeedleNet3D),
+    ("volume", lambda: NeedleNet3D(refine_blocks=2, oriented_taps=4))])
 def test_export_agrees_with_torch(tmp_path, modality, net):
     import onnx
     import onnxruntime as ort
@@ -214,3 +216,96 @@ def test_checkpoint_round_trip(tmp_path):
     x = torch.randn(1, 1, 32, 32)
     with torch.no_grad():
         assert torch.allclose(loaded(x), net(x))
+
+
+def test_refined_network_round_trip_and_supervises_both_stages(tmp_path):
+    """A refined network comes back from its checkpoint with its refinement stage (the
+    checkpoint names no architecture: it is read from the weights), and training supervises
+    the first stage too: the loss is the sum of both stages' losses."""
+    import lightning as L
+
+    from training.module import LikelihoodModule, likelihood_loss
+
+    torch.manual_seed(2)
+    net = _random_bn(NeedleNet3D(width=8, refine_blocks=3)).eval()
+    mod = LikelihoodModule(net, "volume", 0.5)
+    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False)
+    trainer.strategy.connect(mod)
+    trainer.save_checkpoint(tmp_path / "c.ckpt")
+    loaded, _ = load_checkpoint(tmp_path / "c.ckpt")
+    assert loaded.refine is not None and len(loaded.refine) == 3
+    x = torch.randn(2, 1, 16, 24, 20)
+    y = torch.rand(2, 2, 8, 12, 10)
+    with torch.no_grad():
+        assert torch.allclose(loaded(x), net(x))
+        final, aux = net(x, return_aux=True)
+        assert len(aux) == 1 and aux[0].shape == final.shape
+        loss, _ = mod._shared_step((x, y), "val")
+        expected = likelihood_loss(final, y) + likelihood_loss(aux[0], y)
+    assert torch.allclose(loss, expected)
+
+
+def test_volume_contrast_draws_follow_the_config():
+    """The Zhao-mode share and contrast range of the volume worlds come from the config: the
+    defaults keep the shipped recipe's draws (the same random stream), a narrowed range stays
+    inside it, log-uniform draws put more worlds at low contrast, and a range outside Zhao
+    eq. 9's domain is refused by name."""
+    from training.data import randomize
+
+    def draws(cfg, n=400):
+        rng = np.random.default_rng(5)
+        out = [randomize("volume", rng, cfg) for _ in range(n)]
+        return [kw for name, kw in out if name == "volume"]
+
+    default = draws(DataConfig(modality="volume"))
+    assert draws(None) == default  # no config: DataConfig's defaults
+    crs = np.array([kw["cr"] for kw in default if kw["zhao_mode"]])
+    assert 0.4 < len(crs) / len(default) < 0.6 and crs.min() >= 1.5 and crs.max() <= 5.0
+    only = draws(DataConfig(modality="volume", zhao_fraction=1.0, cr_range=(1.8, 2.5)))
+    assert all(kw["zhao_mode"] and 1.8 <= kw["cr"] <= 2.5 for kw in only)
+    log = np.array([kw["cr"] for kw in draws(DataConfig(modality="volume", cr_log=True))
+                    if kw["zhao_mode"]])
+    # below 2.5: 2/7 of uniform draws on [1.5, 5], ln(2.5/1.5)/ln(5/1.5) = 0.42 of log-uniform
+    assert abs((crs < 2.5).mean() - 2 / 7) < 0.08 and abs((log < 2.5).mean() - 0.424) < 0.08
+    with pytest.raises(ValueError, match="cr_range"):
+        draws(DataConfig(modality="volume", cr_range=(1.0, 3.0)))
+
+
+def test_tip_softmax_loss_scores_where_the_maximum_lies():
+    """The spatial-softmax tip loss is lowest for logits peaked at the target's tip, higher
+    for the same peak anywhere else, and zero on crops without a tip."""
+    from training.module import tip_softmax_loss
+
+    y = torch.zeros(1, 2, 8, 8, 8)
+    zz, yy, xx = torch.meshgrid(*[torch.arange(8.0)] * 3, indexing="ij")
+    y[0, 1] = torch.exp(-((zz - 3) ** 2 + (yy - 4) ** 2 + (xx - 5) ** 2) / 2)
+    at_tip = torch.zeros(1, 2, 8, 8, 8)
+    at_tip[0, 1] = 6 * y[0, 1]
+    elsewhere = torch.zeros(1, 2, 8, 8, 8)
+    elsewhere[0, 1] = 6 * torch.roll(y[0, 1], 3, dims=0)
+    assert tip_softmax_loss(at_tip, y) < tip_softmax_loss(elsewhere, y) - 1.0
+    assert tip_softmax_loss(at_tip, torch.zeros_like(y)) == 0
+
+
+@pytest.mark.parametrize("dims,taps", [(2, 3), (3, 4)])
+def test_oriented_sums_match_scipy_correlation(dims, taps):
+    """Each channel of the oriented sums is a correlation with 1/taps at k d (ahead) or
+    -k d (behind), k = 1..taps, zero outside: checked against scipy.ndimage.correlate for
+    every direction (4 in 2D, 13 in 3D) on a seeded random map of odd size."""
+    from scipy import ndimage
+
+    from training.networks import _directions, _OrientedSums
+
+    shape = (11, 9, 13)[:dims]
+    m = np.random.default_rng(4).normal(size=shape).astype(np.float32)
+    out = _OrientedSums(dims, taps)(torch.from_numpy(m)[None, None])[0].numpy()
+    dirs = _directions(dims)
+    assert out.shape == (2 * len(dirs), *shape) and len(dirs) == {2: 4, 3: 13}[dims]
+    for i, d in enumerate(dirs):
+        for j, sign in enumerate((1, -1)):
+            w = np.zeros((2 * taps + 1,) * dims)
+            for k in range(1, taps + 1):
+                w[tuple(taps + sign * k * v for v in d)] = 1.0 / taps
+            ref = ndimage.correlate(m.astype(float), w, mode="constant", cval=0.0)
+            np.testing.assert_allclose(out[2 * i + j], ref, atol=1e-5)
