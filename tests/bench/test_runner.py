@@ -120,6 +120,33 @@ def test_map_peak_is_subpixel():
     np.testing.assert_allclose(map_peak(m), [7.3, 9.6, 4.5], atol=0.05)
 
 
+def test_axis_change_point_finds_the_end_of_a_tube():
+    """A tube of needle-bright voxels (N(70, 14)) in speckle-like noise (N(35, 20)), CR 2.0,
+    ending at a known point: the change point along the axis (given as a line that runs on
+    past the tip) lies within 0.6 mm of it, for an oblique axis, with a bright blob on the
+    axis beyond the window."""
+    import synth
+    from needlenet.bench._models import axis_changepoint_tip
+
+    rng = np.random.default_rng(11)
+    g = synth.Grid((60, 56, 64), (0.5, 0.45, 0.4), (0.0, -12.0, -12.0))
+    img = np.clip(rng.normal(35, 20, g.shape), 1, 255)
+    entry, tip = np.array([-10.0, -8.0, 6.0]), np.array([4.2, 3.1, 18.7])
+    cl = entry + np.linspace(0, 1, 64)[:, None] * (tip - entry)
+    z, y, x = np.meshgrid(*[g.axis_coords(a) for a in range(3)], indexing="ij")
+    pts = np.stack([x, y, z], -1).reshape(-1, 3)
+    d = synth.distance_to_polyline(pts, cl).reshape(g.shape)
+    tube = d <= 0.53
+    img[tube] = np.clip(rng.normal(70, 14, int(tube.sum())), 1, 255)
+    u = (tip - entry) / np.linalg.norm(tip - entry)
+    blob = np.linalg.norm(pts - (tip + 9 * u), axis=1).reshape(g.shape) < 0.8
+    img[blob] = 60.0
+    # the axis only: the line handed over runs 5 mm past the tip
+    line = np.stack([entry, tip + 5 * u])
+    est = axis_changepoint_tip(img.astype(np.uint8), g, line, 0.53)
+    assert np.linalg.norm(est - tip) <= 0.6
+
+
 def test_volume_cells_pool_their_sequences():
     from needlenet.bench._trackers import _pool
 
