@@ -58,7 +58,8 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[nn.Module, dict]:
             width = int(v.shape[0])
     refine = len({k.split(".")[1] for k in state if k.startswith("refine.")})
     taps = int(state["oriented.n_taps"]) if "oriented.n_taps" in state else 0
-    net = build_network(hp["modality"], width, refine, taps)
+    tip_only = bool(int(state["tip_only"])) if "tip_only" in state else False
+    net = build_network(hp["modality"], width, refine, taps, tip_only)
     net.load_state_dict(state)
     net.eval()
     return net, hp

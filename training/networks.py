@@ -105,7 +105,7 @@ class _OrientedSums(nn.Module):
 class _NeedleNet(nn.Module):
     def __init__(self, dims: int, width: int = 16, in_channels: int = 1, out_channels: int = 2,
                  dilations: tuple[int, ...] = (1, 2, 4, 8), refine_blocks: int = 0,
-                 oriented_taps: int = 0):
+                 oriented_taps: int = 0, refine_tip_only: bool = False):
         super().__init__()
         conv = nn.Conv2d if dims == 2 else nn.Conv3d
         bn = nn.BatchNorm2d if dims == 2 else nn.BatchNorm3d
@@ -140,6 +140,9 @@ class _NeedleNet(nn.Module):
             self.refine = nn.Sequential(*[_DSBlock(conv, bn, width, width, dilation=2 ** i)
                                           for i in range(refine_blocks)])
             self.refine_head = conv(width, out_channels, 1)
+            # tip only: the refinement reads the first stage without training it (detached)
+            # and replaces only the tip channel, so the shaft map is the first stage's own
+            self.register_buffer("tip_only", torch.tensor(int(refine_tip_only)))
 
     def forward(self, x, return_aux: bool = False):
         h = self.block_half(self.stem(x))
@@ -150,11 +153,15 @@ class _NeedleNet(nn.Module):
         logits = self.head(f)  # logits at 1/2 resolution
         if self.refine is None:
             return (logits, []) if return_aux else logits
-        parts = [f, logits]
+        tip_only = bool(self.tip_only)
+        parts = [f.detach(), logits.detach()] if tip_only else [f, logits]
         if self.oriented is not None:
-            ev = torch.cat([torch.sigmoid(logits[:, :1]), torch.tanh(self.evidence(f))], 1)
+            ev = torch.cat([torch.sigmoid(parts[1][:, :1]), torch.tanh(self.evidence(parts[0]))],
+                           1)
             parts.append(self.oriented(ev))
         out = self.refine_head(self.refine(self.refine_in(torch.cat(parts, 1))))
+        if tip_only:
+            out = torch.cat([logits[:, :1], out[:, 1:]], 1)
         return (out, [logits]) if return_aux else out
 
 
@@ -173,8 +180,9 @@ class NeedleNet3D(_NeedleNet):
 
 
 def build_network(modality: str, width: int | None = None, refine_blocks: int = 0,
-                  oriented_taps: int = 0) -> nn.Module:
-    kw = {"refine_blocks": refine_blocks, "oriented_taps": oriented_taps}
+                  oriented_taps: int = 0, refine_tip_only: bool = False) -> nn.Module:
+    kw = {"refine_blocks": refine_blocks, "oriented_taps": oriented_taps,
+          "refine_tip_only": refine_tip_only}
     if modality in ("inplane", "axial"):
         return NeedleNet2D(width=width or 16, **kw)
     if modality == "volume":

@@ -30,6 +30,7 @@ class TrainConfig:
     width: int | None = None
     refine_blocks: int = 0  # a refinement stage of this many blocks (0: none)
     oriented_taps: int = 0  # one-sided sums along 13 directions in the refinement (0: none)
+    refine_tip_only: bool = False  # the refinement replaces only the tip, from detached inputs
     tip_softmax_weight: float = 0.0  # weight of training.module.tip_softmax_loss (0: off)
     pos_weight: tuple[float, float] = (20.0, 50.0)  # BCE weight of positives: shaft, tip
     out_dir: str = "runs/inplane"
@@ -76,7 +77,7 @@ def train(config: TrainConfig) -> dict:
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     net = build_network(config.modality, config.width, config.refine_blocks,
-                        config.oriented_taps)
+                        config.oriented_taps, config.refine_tip_only)
     module = LikelihoodModule(net, config.modality, config.data.spacing_mm, lr=config.lr,
                               max_steps=config.steps,
                               target_reference=target_reference(config.modality),

@@ -167,7 +167,7 @@ def _random_bn(net):
 
 @pytest.mark.parametrize("modality,net", [
     ("inplane", NeedleNet2D), ("volume", NeedleNet3D),
-    ("volume", lambda: NeedleNet3D(refine_blocks=2, oriented_taps=4))])
+    ("volume", lambda: NeedleNet3D(refine_blocks=2, oriented_taps=4, refine_tip_only=True))])
 def test_export_agrees_with_torch(tmp_path, modality, net):
     import onnx
     import onnxruntime as ort
@@ -218,7 +218,9 @@ def test_checkpoint_round_trip(tmp_path):
         assert torch.allclose(loaded(x), net(x))
 
 
-def test_refined_network_round_trip_and_supervises_both_stages(tmp_path):
+@pytest.mark.filterwarnings("ignore:You are trying to `self.log\\(\\)`")
+@pytest.mark.parametrize("tip_only", [False, True])
+def test_refined_network_round_trip_and_supervises_both_stages(tmp_path, tip_only):
     """A refined network comes back from its checkpoint with its refinement stage (the
     checkpoint names no architecture: it is read from the weights), and training supervises
     the first stage too: the loss is the sum of both stages' losses."""
@@ -227,7 +229,8 @@ def test_refined_network_round_trip_and_supervises_both_stages(tmp_path):
     from training.module import LikelihoodModule, likelihood_loss
 
     torch.manual_seed(2)
-    net = _random_bn(NeedleNet3D(width=8, refine_blocks=3)).eval()
+    net = _random_bn(NeedleNet3D(width=8, refine_blocks=3, oriented_taps=2 if tip_only else 0,
+                                 refine_tip_only=tip_only)).eval()
     mod = LikelihoodModule(net, "volume", 0.5)
     trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
                         enable_model_summary=False)
@@ -235,6 +238,7 @@ def test_refined_network_round_trip_and_supervises_both_stages(tmp_path):
     trainer.save_checkpoint(tmp_path / "c.ckpt")
     loaded, _ = load_checkpoint(tmp_path / "c.ckpt")
     assert loaded.refine is not None and len(loaded.refine) == 3
+    assert bool(loaded.tip_only) == tip_only and (loaded.oriented is not None) == tip_only
     x = torch.randn(2, 1, 16, 24, 20)
     y = torch.rand(2, 2, 8, 12, 10)
     with torch.no_grad():
@@ -244,6 +248,14 @@ def test_refined_network_round_trip_and_supervises_both_stages(tmp_path):
         loss, _ = mod._shared_step((x, y), "val")
         expected = likelihood_loss(final, y) + likelihood_loss(aux[0], y)
     assert torch.allclose(loss, expected)
+    if tip_only:  # the shaft is the first stage's; the tip trains nothing before it
+        assert torch.equal(final[:, 0], aux[0][:, 0])
+        net.train()
+        out, _ = net(x, return_aux=True)
+        out[:, 1].sum().backward()
+        g = net.stem[0].weight.grad
+        assert g is None or float(g.abs().sum()) == 0.0
+        assert float(net.refine_head.weight.grad.abs().sum()) > 0
 
 
 def test_volume_contrast_draws_follow_the_config():
