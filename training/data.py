@@ -63,15 +63,21 @@ class DataConfig:
     cr_range: tuple[float, float] = (1.5, 5.0)
     cr_log: bool = False
 
+    def __post_init__(self):
+        if not 0.0 <= self.zhao_fraction <= 1.0:
+            raise ValueError(f"zhao_fraction must be in [0, 1], got {self.zhao_fraction}")
+        lo, hi = (float(v) for v in self.cr_range)
+        if not 1.05 <= lo <= hi <= 10.0:  # Zhao eq. 9's domain in synth
+            raise ValueError("cr_range must satisfy 1.05 <= low <= high <= 10, got "
+                             f"{tuple(self.cr_range)}")
+
 
 def _u(rng, a, b):
     return float(rng.uniform(a, b))
 
 
 def _draw_cr(rng: np.random.Generator, cfg: DataConfig) -> float:
-    lo, hi = (float(v) for v in cfg.cr_range)
-    if not 1.05 <= lo <= hi <= 10.0:
-        raise ValueError(f"cr_range must satisfy 1.05 <= low <= high <= 10, got {cfg.cr_range}")
+    lo, hi = (float(v) for v in cfg.cr_range)  # checked by DataConfig
     if cfg.cr_log:
         return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
     return _u(rng, lo, hi)

@@ -78,8 +78,9 @@ def axis_changepoint_tip(image: np.ndarray, grid, centerline: np.ndarray, radius
     a radius of the axis over ``window_mm`` behind it minus the mean over ``window_mm`` ahead).
 
     Not a tracker (it is told the axis): a bound on what the image holds at the tip, to read
-    a tip map's accuracy against. Voxels outside the sector (zero) are left out. Returns the
-    tip (x, y, z) in mm."""
+    a tip map's accuracy against. Only the line through ``centerline``'s ends is used:
+    candidates lie up to ``2 window_mm + 12`` mm either side of its last point along it.
+    Voxels outside the sector (zero) are left out. Returns the tip (x, y, z) in mm."""
     cl = np.asarray(centerline, float)
     tip = cl[-1]
     u = cl[-1] - cl[0]
