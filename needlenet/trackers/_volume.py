@@ -33,7 +33,11 @@ squares on the inliers, an axis oriented from the entry to the tip, and the tip 
 maximum of the feature over the needle's cross-section drops below the threshold for good
 (gaps shorter than ``max_gap_mm`` bridged), one needle-image cap (``tip_cap_mm``) short of
 the drop. The least squares is repeated on the inliers between the entry and the tip: the
-inliers of the infinite line beyond the needle are background.
+inliers of the infinite line beyond the needle are background. With learned features the map
+finds the needle and the B-mode image places it (``image_refine``): the axis is refitted on
+the image's voxels in narrowing tubes around it (across the beam; along it the map's depth
+stands, as a needle's echo comes from its wall facing the probe) and the tip is the change
+point of the image along the axis, where that change is clear.
 
 Choices where the papers are silent are fields of :class:`VolumeTrackerParams`, each with its
 reason. Three are not in the papers at all: the initialisations accept only a needle that
@@ -176,6 +180,52 @@ class VolumeTrackerParams:
         within 1 mm in only 7.5% of held-out volumes, and with a 3 mm window on Zhao's
         Table 2 volumes (ROI-RK) it moved the median tip error from 0.40-0.77 mm to
         1.09-2.68 mm.
+    image_refine : bool
+        For learned features: the map finds the needle, the B-mode image places it. After
+        the least squares on the likelihood-weighted inliers, a straight axis is refitted on
+        the image inside a narrowing tube around it (``image_refine_radii_mm``; weighted
+        total least squares of the voxels, each weighted by its excess over the tube's
+        ``image_refine_percentile``), and the tip is the change point of the image along the
+        axis (:func:`_image_tip`). Zhao's local optimisation (App. B, eq. (B6)) refits on the
+        image's own inliers; the learned map's needle is a blurred, stride-2 output, whose
+        axis lay a median 0.56-0.58 mm off the needle on the held-out CR 3.0 and 5.0 volumes
+        of ``needlenet bench models`` and whose half-maximum drop fell a median 1.8 mm short
+        of the tip at CR 2.0. Curved models keep their axis and get the image's tip.
+    image_refine_radii_mm : tuple of float
+        Radii of the successive tubes (mm), widest first: the first catches an axis a few
+        tenths of a millimetre off, the last (about 1.5 needle radii) keeps the tissue
+        beside the needle out of the fit.
+    image_refine_percentile : float
+        Voxels of the tube above this percentile of the tube's intensities pull the axis,
+        each by its excess: the needle fills a small part of the widest tube.
+    image_refine_keep_depth : bool
+        The image moves the axis across the beam only; along the depth axis of the probe
+        frame (z, made perpendicular to the needle) the map's position stands. A physical
+        needle's echo comes from its wall facing the probe, a radius above the centre line
+        that the map was trained on. In Chatelain's servo (``volume-motion``, misalignment,
+        seeds 0-3) the P-hat RMSE was 0.49-0.63 mm with the map's axis and tip, 0.62-0.63 mm
+        with the image's axis and tip, 0.39-0.49 mm with the map's axis and the image's tip,
+        and 0.36-0.38 mm with the image's axis across the beam only and the image's tip.
+    image_tip_radius_mm : float
+        The image along the axis is averaged over the axis and six parallel lines this far
+        from it (about the needle's radius).
+    image_tip_window_mm : float
+        The change point maximises the mean of the image over this length behind it minus the
+        mean over this length ahead of it.
+    image_tip_search_mm : float
+        The change point is looked for within this distance of where the learned map's
+        likelihood drops (which can fall short of the tip where the contrast is low).
+    image_tip_cap_mm : float
+        The image's change point lies this far beyond the tip (the needle's echo spreads
+        past its end), which is subtracted: a median 0.32-0.35 mm on ``volume`` sequences of
+        training seeds (5,000,000-5,000,005; CR 3.0, 4.7 and 5.0, 96^3 and 128^3 volumes,
+        alpha 0 and 60 degrees), not on the held-out seeds the benchmarks report. 0.35 mm.
+    image_tip_min_effect : float
+        The image's change must be at least this many pooled standard deviations of the
+        profile within its two windows, or the learned drop stands. Along lines 4 mm beside
+        the needle in the same training volumes the largest change reached 1.8 (median) and
+        2.4 (95th percentile) standard deviations; along the needle 4.6 (median) and 1.8
+        (5th percentile) at CR 2.0, 7.4 and 5.5 at CR 5.0. 2.5.
 
     Zhao 2013 ROI-RK
     ----------------
@@ -274,6 +324,15 @@ class VolumeTrackerParams:
     max_candidates: int = 20_000
     tip_window_mm: float = 0.0
     tip_min: float = 0.3
+    image_refine: bool = True
+    image_refine_radii_mm: tuple[float, ...] = (1.5, 1.0, 0.75)
+    image_refine_percentile: float = 70.0
+    image_refine_keep_depth: bool = True
+    image_tip_radius_mm: float = 0.5
+    image_tip_window_mm: float = 4.0
+    image_tip_search_mm: float = 8.0
+    image_tip_cap_mm: float = 0.35
+    image_tip_min_effect: float = 2.5
     # roi-rk
     roi_radius_mm: float = 2.5
     max_axis_jump_deg: float = 15.0
@@ -313,18 +372,28 @@ class VolumeTrackerParams:
                     "q_tip", "r_angle", "r_position", "r_velocity", "p0_angle_rate",
                     "p0_velocity", "voi_radius_mm", "voi_candidates_mm3", "init_voi_radius_mm",
                     "max_angle_deg", "q_control", "r_control", "p0_control_velocity",
-                    "default_dt_s")
+                    "default_dt_s", "image_tip_radius_mm", "image_tip_window_mm",
+                    "image_tip_search_mm", "image_tip_min_effect")
         for name in positive:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"VolumeTrackerParams.{name} must be finite and > 0, "
                                  f"got {value}")
         for name in ("min_sample_distance_mm", "max_gap_mm", "speckle_search_mm",
-                     "voi_margin_mm", "tip_cap_mm", "entry_margin_mm", "tip_window_mm"):
+                     "voi_margin_mm", "tip_cap_mm", "entry_margin_mm", "tip_window_mm",
+                     "image_tip_cap_mm"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"VolumeTrackerParams.{name} must be finite and >= 0, "
                                  f"got {value}")
+        radii = self.image_refine_radii_mm
+        if not (isinstance(radii, tuple) and all(
+                isinstance(r, (int, float)) and np.isfinite(r) and r > 0 for r in radii)):
+            raise ValueError(f"VolumeTrackerParams.image_refine_radii_mm must be a tuple of "
+                             f"finite radii > 0 (mm), got {radii!r}")
+        if not 0.0 <= self.image_refine_percentile < 100.0:
+            raise ValueError(f"image_refine_percentile must be in [0, 100), "
+                             f"got {self.image_refine_percentile}")
         if not 0.0 < self.threshold_percentile < 100.0:
             raise ValueError(f"threshold_percentile must be in (0, 100), "
                              f"got {self.threshold_percentile}")
@@ -684,7 +753,13 @@ def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
                             r_in)
             if again is not None:
                 fitted, (a_entry, a_drop) = refit, again
-    a_tip = a_drop - p.tip_cap_mm  # the image of the needle ends one cap beyond its tip
+    if vol.learned and p.image_refine:
+        # the learned map found the needle; the image places its axis and its tip
+        if model == "line":
+            fitted, a_entry, a_drop = _refine_on_image(vol, fitted, a_entry, a_drop, p)
+        a_tip = _image_tip(vol, fitted, a_entry, a_drop, p)
+    else:
+        a_tip = a_drop - p.tip_cap_mm  # the image of the needle ends one cap beyond its tip
     if vol.tip is not None and p.tip_window_mm > 0:
         a_tip = _tip_on_map(vol, fitted, a_entry, a_tip, p)
     length = a_tip - a_entry
@@ -698,6 +773,95 @@ def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
     gap = _distance_to_boundary(vol, entry, -direction, far, 0.5 * float(vol.spacing.min()))
     return _Measurement(True, None, fitted, entry, tip, direction, n_inliers, res.n_trials,
                         roi_voxels, a_entry, a_tip, gap)
+
+
+def _refine_on_image(vol: _Volume, fitted: LineModel, a_entry: float, a_drop: float,
+                     p: VolumeTrackerParams) -> tuple[LineModel, float, float]:
+    """A straight axis refitted on the image in narrowing tubes around ``fitted`` between the
+    entry and the drop (1 mm beyond each): weighted total least squares of the voxels above
+    the tube's ``image_refine_percentile``, each weighted by its excess (Zhao App. B's local
+    optimisation, on the image's needle voxels). Returns the axis, oriented as ``fitted``,
+    with the entry and the drop carried onto it; ``fitted`` unchanged when a tube holds
+    too few voxels above the level (``min_inliers``)."""
+    u = fitted.principal_direction
+    entry_pt, drop_pt = fitted.points_at(np.array([a_entry, a_drop]))
+    image = vol.image.reshape(-1)
+    model = fitted
+    for radius in p.image_refine_radii_mm:
+        start = model.points_at(np.array([model.parameter(entry_pt[None])[0]]))[0]
+        length = float(model.parameter(drop_pt[None])[0] - model.parameter(entry_pt[None])[0])
+        idx = _cylinder(vol, start, model.principal_direction, float(radius),
+                        (-1.0, length + 1.0))
+        if idx.size < p.min_inliers:
+            break
+        values = image[idx].astype(float)
+        w = np.maximum(values - np.percentile(values, p.image_refine_percentile), 0.0)
+        if np.count_nonzero(w) < p.min_inliers:
+            break
+        model = LineModel.from_inliers(vol.points(idx), w).oriented(u)
+    if model is not fitted and p.image_refine_keep_depth:
+        v = model.principal_direction
+        mid = 0.5 * (entry_pt + drop_pt)
+        gap = mid - model.points_at(model.parameter(mid[None]))[0]  # map axis - image axis
+        depth = np.array([0.0, 0.0, 1.0]) - v[2] * v
+        if np.linalg.norm(depth) > 1e-6:
+            depth /= np.linalg.norm(depth)
+            model = LineModel(model.origin + (gap @ depth) * depth, v)
+    a = model.parameter(np.stack([entry_pt, drop_pt]))
+    return model, float(a[0]), float(a[1])
+
+
+def _image_tip(vol: _Volume, fitted, a_entry: float, a_drop: float,
+               p: VolumeTrackerParams) -> float:
+    """The tip along the axis from the image: the change point of the image's profile along
+    the axis (at each position the mean over the axis and six lines ``image_tip_radius_mm``
+    around it), the position within ``image_tip_search_mm`` of the likelihood's drop
+    ``a_drop`` (and at least one window beyond the entry) that maximises the mean of the
+    profile over ``image_tip_window_mm`` behind it minus the mean over the same length ahead,
+    less ``image_tip_cap_mm``.
+
+    The change stands only when it is clear: the step is at least ``image_tip_min_effect``
+    times the pooled standard deviation of the profile within the two windows. Otherwise,
+    or when no position has a quarter of a window of profile inside the sector on each side,
+    the likelihood's drop less ``tip_cap_mm`` is the tip: a map that sees a needle the image
+    does not show keeps its own tip."""
+    fallback = a_drop - p.tip_cap_mm
+    step = 0.5 * float(vol.spacing.min())
+    w = max(1, int(round(p.image_tip_window_mm / step)))
+    lo = max(a_drop - p.image_tip_search_mm, a_entry + p.image_tip_window_mm)
+    hi = a_drop + p.image_tip_search_mm
+    if hi <= lo:
+        return fallback
+    a = np.arange(lo - w * step, hi + (w + 1) * step, step)
+    centre = fitted.points_at(a)
+    e1, e2 = _perpendiculars(fitted.principal_direction)
+    offsets = p.image_tip_radius_mm * (_PROFILE_OFFSETS[:, :1] * e1 + _PROFILE_OFFSETS[:, 1:] * e2)
+    pts = centre[None, :, :] + offsets[:, None, :]  # (7, K, 3)
+    values = vol.sample(vol.image.astype(np.float32, copy=False), pts)
+    inside = vol.sample(vol.sector.view(np.uint8), pts, order=0) > 0
+    n_in = inside.sum(0)
+    valid = n_in > 0
+    prof = np.where(valid, np.where(inside, values, 0.0).sum(0) / np.maximum(n_in, 1), 0.0)
+
+    def csum(x):
+        return np.concatenate([[0.0], np.cumsum(x)])
+
+    s1, s2, cnt = csum(prof), csum(prof * prof), csum(valid.astype(float))
+    c = np.arange(w, a.size - w + 1)  # boundary before sample c
+    nb, na = cnt[c] - cnt[c - w], cnt[c + w] - cnt[c]
+    ok = (nb >= max(1.0, 0.25 * w)) & (na >= max(1.0, 0.25 * w))
+    if not ok.any():
+        return fallback
+    nb_, na_ = np.maximum(nb, 1.0), np.maximum(na, 1.0)
+    mb, ma = (s1[c] - s1[c - w]) / nb_, (s1[c + w] - s1[c]) / na_
+    change = np.where(ok, mb - ma, -np.inf)
+    k = int(np.argmax(change))
+    var = ((s2[c[k]] - s2[c[k] - w]) - nb[k] * mb[k] ** 2
+           + (s2[c[k] + w] - s2[c[k]]) - na[k] * ma[k] ** 2) / (nb[k] + na[k])
+    if not change[k] >= p.image_tip_min_effect * math.sqrt(max(var, 0.0)):
+        return fallback
+    boundary = a[c[k]] - 0.5 * step  # between samples c - 1 and c
+    return float(boundary) - p.image_tip_cap_mm
 
 
 def _tip_on_map(vol: _Volume, fitted, a_entry: float, a_tip: float,

@@ -5,6 +5,7 @@ once per module.
 """
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -325,3 +326,99 @@ def test_tip_window_moves_the_tip_to_the_tip_maps_peak_along_the_axis():
     assert _tip_on_map(weak, line, 0.0, 15.8, p) == 15.8
     # classical features carry no tip map
     assert _Volume(Frame(image, grid), lk, learned=False).tip is None
+
+
+# --------------------------------------------------------------------------------------------
+# Learned features: the map finds the needle, the image places it
+# --------------------------------------------------------------------------------------------
+
+
+def _needle_phantom(seed=5):
+    """Speckle-like noise with a bright needle (radius 0.5 mm) from the x = -9 face, 14 mm
+    long, on anisotropic voxels."""
+    grid, _, entry, _, u = _learned_case(14.0)
+    rng = np.random.default_rng(seed)
+    image = rng.rayleigh(20.0, grid.shape)
+    tip = entry + 14.0 * u
+    x, y, z = grid.point_grids()
+    pts = np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+    t = (pts - entry) @ u
+    d = np.linalg.norm(pts - entry - np.clip(t, 0.0, 14.0)[..., None] * u, axis=-1)
+    image[(d <= 0.5) & (t <= 14.0)] += 60.0
+    return grid, np.clip(image, 1, 255).astype(np.uint8), entry, tip, u
+
+
+def test_image_refinement_moves_a_learned_axis_and_tip_onto_the_image_needle():
+    grid, image, entry, tip, u = _needle_phantom()
+    # the map's needle: 0.6 mm beside the image's (a wall, a blurred map) and ending 2.5 mm
+    # short of its tip (a half-maximum drop at low contrast)
+    helper = np.cross(u, [0.0, 0.0, 1.0])
+    side = 0.6 * helper / np.linalg.norm(helper)
+    source = _TubeLikelihood(entry + side, tip - 2.5 * u + side)
+    frame = Frame(image, grid, t=0.0)
+
+    def run(**kw):
+        params = VolumeTrackerParams(image_tip_cap_mm=0.0, **kw)  # the phantom's echo ends
+        return VolumeTracker("ransac", features=source, params=params, rng=0).update(frame)
+
+    def off_axis(est):  # distance of the true tip from the estimated axis
+        w = tip - est.tip_mm
+        return float(np.linalg.norm(w - (w @ est.direction) * est.direction))
+
+    plain, refined = run(image_refine=False), run()
+    assert off_axis(plain) > 0.5
+    assert off_axis(refined) < 0.1
+    assert (tip - plain.tip_mm) @ u > 2.0
+    assert abs((tip - refined.tip_mm) @ u) < 0.2
+    assert refined.direction @ u > 0.9995
+
+
+def test_image_refinement_keeps_the_maps_depth_of_the_axis():
+    # a needle's echo comes from its wall facing the probe: the image places the axis across
+    # the beam, the map (trained on the centre line) along it
+    grid, image, entry, tip, u = _needle_phantom()
+    depth = np.array([0.0, 0.0, 1.0]) - u[2] * u
+    depth /= np.linalg.norm(depth)
+    source = _TubeLikelihood(entry + 0.5 * depth, tip + 0.5 * depth)
+    frame = Frame(image, grid, t=0.0)
+
+    def depth_offset(keep):
+        params = VolumeTrackerParams(image_refine_keep_depth=keep)
+        est = VolumeTracker("ransac", features=source, params=params, rng=0).update(frame)
+        w = est.tip_mm - tip
+        return float((w - (w @ est.direction) * est.direction) @ depth)
+
+    assert depth_offset(True) == pytest.approx(0.5, abs=0.1)
+    assert abs(depth_offset(False)) < 0.1
+
+
+def test_image_tip_falls_back_to_the_learned_drop_without_a_clear_change():
+    from needlenet.backends._ransac import LineModel
+    from needlenet.trackers._volume import _image_tip
+
+    grid, image, entry, tip, u = _needle_phantom()
+    lk = Likelihood(np.zeros(grid.shape, np.float32))
+    p = VolumeTrackerParams(image_tip_cap_mm=0.0)
+    line = LineModel(entry, u)
+    vol = _Volume(Frame(image, grid), lk, learned=True)
+    assert _image_tip(vol, line, 0.0, 12.0, p) == pytest.approx(14.0, abs=0.2)
+    # the same line in noise alone: no change of 2.5 standard deviations; the drop stands
+    flat = np.random.default_rng(6).rayleigh(20.0, grid.shape).clip(1, 255).astype(np.uint8)
+    vol = _Volume(Frame(flat, grid), lk, learned=True)
+    assert _image_tip(vol, line, 0.0, 12.0, p) == 12.0 - p.tip_cap_mm
+    # a search that cannot start one window beyond the entry: the drop stands
+    assert _image_tip(vol, line, 0.0, 1.0, replace(p, image_tip_search_mm=1.0)) == \
+        1.0 - p.tip_cap_mm
+
+
+def test_image_refinement_params_are_checked():
+    with pytest.raises(ValueError, match="image_refine_radii_mm"):
+        VolumeTrackerParams(image_refine_radii_mm=(1.5, -1.0))
+    with pytest.raises(ValueError, match="image_refine_radii_mm"):
+        VolumeTrackerParams(image_refine_radii_mm=[1.5])
+    with pytest.raises(ValueError, match="image_refine_percentile"):
+        VolumeTrackerParams(image_refine_percentile=100.0)
+    with pytest.raises(ValueError, match="image_tip_window_mm"):
+        VolumeTrackerParams(image_tip_window_mm=0.0)
+    with pytest.raises(ValueError, match="image_tip_cap_mm"):
+        VolumeTrackerParams(image_tip_cap_mm=-0.1)
