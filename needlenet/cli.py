@@ -205,6 +205,10 @@ def _add_track(sub) -> None:
     p.add_argument("--realtime", action="store_true",
                    help="pace the frames at their timestamps (for watching a stream live)")
     p.add_argument("--seed", type=int, default=0, help="seed of randomised methods")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="a tracker parameter: a field of InplaneParams, VolumeTrackerParams "
+                        "or AxialParams (e.g. intensity_threshold=70, image_refine=false, "
+                        "insertion.variance_threshold_mm2=90); repeatable")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_track)
@@ -259,7 +263,7 @@ def _cmd_track(args) -> int:
 
     from .eval import evaluate, latency_summary
     from .trackers._base import frames_from_sequence
-    from .trackers._registry import make_tracker, tracker_class
+    from .trackers._registry import make_tracker, tracker_class, tracker_params
 
     out_json = _check_output(args.json_out, ".json", args.overwrite, "--json")
     overlay = None
@@ -276,6 +280,12 @@ def _cmd_track(args) -> int:
     if args.method not in cls.methods:
         raise CLIError(f"track: tracker {args.tracker!r} has no method {args.method!r}; "
                        f"choose one of {', '.join(cls.methods)}")
+    params = None
+    if args.param:  # checked before the recording is read
+        try:
+            params = tracker_params(args.tracker, args.param)
+        except (ValueError, TypeError) as exc:
+            raise CLIError(f"track: --param: {exc}") from None
     seq = _load_for_track(args)
     if seq.modality != args.tracker:
         raise CLIError(f"track: {args.file} holds {seq.modality!r} frames "
@@ -284,6 +294,8 @@ def _cmd_track(args) -> int:
     import inspect
 
     kw = {"seed": args.seed} if "seed" in inspect.signature(cls).parameters else {}
+    if params is not None:
+        kw["params"] = params
     try:
         tracker = make_tracker(args.tracker, args.method, args.features, args.model, **kw)
     except (ValueError, FileNotFoundError) as exc:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
 import importlib
+import math
 
-__all__ = ["TRACKERS", "tracker_class", "make_tracker", "FEATURE_KINDS"]
+__all__ = ["TRACKERS", "tracker_class", "make_tracker", "tracker_params", "FEATURE_KINDS"]
 
 TRACKERS = {
     "inplane": ("needlenet.trackers._inplane", "InplaneTracker"),
@@ -12,6 +15,11 @@ TRACKERS = {
     "axial": ("needlenet.trackers._axial", "AxialTracker"),
 }
 FEATURE_KINDS = ("classical", "learned")
+PARAMS = {
+    "inplane": ("needlenet.trackers._inplane", "InplaneParams"),
+    "volume": ("needlenet.trackers._volume", "VolumeTrackerParams"),
+    "axial": ("needlenet.trackers._axial", "AxialParams"),
+}
 
 
 def tracker_class(name: str):
@@ -37,3 +45,91 @@ def make_tracker(name: str, method: str, features: str = "classical", model: str
     else:
         source = cls.default_features()
     return cls(method, features=source, **params)
+
+
+def _convert(name: str, text: str, default):
+    """``text`` as a value of the type of ``default`` (the field's default value)."""
+    low = text.strip().lower()
+    if default is None or low in ("none", "null"):
+        if low in ("none", "null"):
+            return None
+        for conv in (int, float):
+            try:
+                return conv(text)
+            except ValueError:
+                pass
+        if low in ("true", "false"):
+            return low == "true"
+        return text
+    if isinstance(default, bool):
+        if low in ("true", "1", "yes", "on"):
+            return True
+        if low in ("false", "0", "no", "off"):
+            return False
+        raise ValueError(f"parameter {name}: expected true or false, got {text!r}")
+    if isinstance(default, (int, float)):
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"parameter {name}: expected a number, got {text!r}") from None
+        if isinstance(default, int):
+            if not value.is_integer():
+                raise ValueError(f"parameter {name}: expected an integer, got {text!r}")
+            return int(value)
+        if not math.isfinite(value):
+            raise ValueError(f"parameter {name}: expected a finite number, got {text!r}")
+        return value
+    if isinstance(default, tuple):
+        items = [t for t in text.split(",") if t.strip()]
+        if not items:
+            raise ValueError(f"parameter {name}: expected comma-separated values, got {text!r}")
+        return tuple(_convert(name, t, default[0] if default else 0.0) for t in items)
+    if isinstance(default, str):
+        return text
+    raise ValueError(f"parameter {name} ({type(default).__name__}) cannot be set as text; "
+                     f"set its fields instead ({name}.FIELD=VALUE)")
+
+
+def tracker_params(name: str, settings):
+    """The tracker's parameter dataclass (``InplaneParams``, ``VolumeTrackerParams``,
+    ``AxialParams``) with ``settings`` applied: ``"NAME=VALUE"`` strings (or a mapping of
+    names to text), a nested field as ``NAME.FIELD=VALUE``. Each value is read as the type
+    of the field's default (booleans as true/false, tuples as comma-separated values); the
+    dataclass then checks the result. Unknown names and unreadable values raise ValueError
+    naming them."""
+    if name not in PARAMS:
+        raise ValueError(f"unknown tracker {name!r}; choose one of {', '.join(PARAMS)}")
+    module, cls_name = PARAMS[name]
+    cls = getattr(importlib.import_module(module), cls_name)
+    pairs = settings.items() if isinstance(settings, dict) else []
+    if not isinstance(settings, dict):
+        for item in settings:
+            if "=" not in item:
+                raise ValueError(f"parameter {item!r}: expected NAME=VALUE")
+            key, value = item.split("=", 1)
+            pairs.append((key.strip(), value))
+    top: dict = {}
+    nested: dict = {}
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    base = cls()
+    for key, text in pairs:
+        head, _, rest = key.partition(".")
+        if head not in fields:
+            close = difflib.get_close_matches(head, list(fields), n=3)
+            hint = f"; did you mean {', '.join(close)}?" if close else ""
+            raise ValueError(f"unknown {cls_name} parameter {head!r}{hint} (parameters: "
+                             f"{', '.join(fields)})")
+        default = getattr(base, head)
+        if rest:
+            if not dataclasses.is_dataclass(default):
+                raise ValueError(f"parameter {head} has no fields ({key!r})")
+            sub = {f.name for f in dataclasses.fields(default)}
+            if rest not in sub:
+                raise ValueError(f"unknown {type(default).__name__} parameter {rest!r} of "
+                                 f"{head} (parameters: {', '.join(sorted(sub))})")
+            nested.setdefault(head, {})[rest] = _convert(key, text, getattr(default, rest))
+        else:
+            top[head] = _convert(key, text, default)
+    for head, values in nested.items():
+        top[head] = dataclasses.replace(top.get(head, getattr(base, head)), **values)
+    return cls(**top)

@@ -59,6 +59,61 @@ def test_bad_arguments(inplane_file, tmp_path, capsys, argv, msg):
     assert rc == 2 and msg in capsys.readouterr().err
 
 
+def test_tracker_params_are_read_as_their_fields_types():
+    from needlenet.trackers import AxialParams, InplaneParams, VolumeTrackerParams, tracker_params
+
+    p = tracker_params("volume", ["image_refine=false", "max_trials=200",
+                                  "intensity_threshold=70", "image_refine_radii_mm=2,1.25",
+                                  "insertion.variance_threshold_mm2=90", "frangi.alpha=0.3"])
+    assert isinstance(p, VolumeTrackerParams)
+    assert p.image_refine is False and p.max_trials == 200 and p.intensity_threshold == 70
+    assert p.image_refine_radii_mm == (2.0, 1.25)
+    assert p.insertion.variance_threshold_mm2 == 90.0
+    assert p.insertion.n_candidates == VolumeTrackerParams().insertion.n_candidates
+    assert p.frangi.alpha == 0.3
+    assert tracker_params("volume", {"intensity_threshold": "none"}).intensity_threshold is None
+    assert isinstance(tracker_params("inplane", []), InplaneParams)
+    assert isinstance(tracker_params("axial", []), AxialParams)
+
+
+@pytest.mark.parametrize("setting,msg", [
+    ("max_trails=10", "unknown VolumeTrackerParams parameter 'max_trails'; did you mean "
+                      "max_trials"),
+    ("max_trials=2.5", "parameter max_trials: expected an integer, got '2.5'"),
+    ("max_trials=many", "parameter max_trials: expected a number"),
+    ("image_refine=maybe", "parameter image_refine: expected true or false"),
+    ("roi_radius_mm=nan", "expected a finite number"),
+    ("roi_radius_mm=-1", "roi_radius_mm must be finite and > 0"),
+    ("insertion.tau=3", "unknown InsertionParams parameter 'tau' of insertion"),
+    ("max_trials.x=3", "parameter max_trials has no fields"),
+    ("frangi=1", "set its fields instead (frangi.FIELD=VALUE)"),
+    ("image_refine", "expected NAME=VALUE"),
+])
+def test_bad_tracker_params_are_named(tmp_path, capsys, setting, msg):
+    from needlenet.trackers import tracker_params
+
+    with pytest.raises(ValueError) as exc:
+        tracker_params("volume", [setting])
+    assert msg in str(exc.value)
+    # the CLI says the same before it reads the recording (which does not exist here)
+    rc = main(["track", str(tmp_path / "none.npz"), "--tracker", "volume", "--method",
+               "roi-rk", "--param", setting])
+    assert rc == 2 and msg in capsys.readouterr().err
+
+
+def test_track_passes_params_to_the_tracker(tmp_path):
+    f = synth.save_sequence(synth.generate("volume", seed=14, background="homogeneous",
+                                           frames=4, output_size=64, cr=4.7),
+                            tmp_path / "v.npz")
+    rates = []
+    for extra in ([], ["--param", "intensity_threshold=255"]):  # a grey level nothing reaches
+        out = tmp_path / f"r{len(extra)}.json"
+        assert main(["track", str(f), "--tracker", "volume", "--method", "roi-rk", "--json",
+                     str(out), "--quiet", *extra]) == 0
+        rates.append(json.loads(out.read_text())["summary"]["failure_rate"])
+    assert rates[0] < 1.0 and rates[1] == 1.0
+
+
 def test_corrupt_file_is_named(tmp_path, capsys):
     bad = tmp_path / "bad.npz"
     bad.write_bytes(b"garbage")
