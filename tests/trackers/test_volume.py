@@ -422,3 +422,48 @@ def test_image_refinement_params_are_checked():
         VolumeTrackerParams(image_tip_window_mm=0.0)
     with pytest.raises(ValueError, match="image_tip_cap_mm"):
         VolumeTrackerParams(image_tip_cap_mm=-0.1)
+
+
+class _TwoTubes(FeatureSource):
+    """A map with a short, likely needle and a long, less likely tissue line, both starting on
+    the volume's faces."""
+
+    kind = "learned"
+    name = "two-tubes"
+
+    def __init__(self, tubes):
+        self.tubes = tubes  # (entry, tip, amplitude)
+
+    def likelihood(self, frame, roi=None):
+        x, y, z = frame.grid.point_grids()
+        pts = np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+        out = np.zeros(frame.grid.shape)
+        for entry, tip, amp in self.tubes:
+            u = tip - entry
+            length = np.linalg.norm(u)
+            t = np.clip((pts - entry) @ (u / length), 0.0, length)
+            d = np.linalg.norm(pts - (entry + t[..., None] * u / length), axis=-1)
+            out = np.maximum(out, amp * np.exp(-0.5 * (d / 0.4) ** 2))
+        return Likelihood(out.astype(np.float32), source=self.name)
+
+
+def test_learned_initialisation_prefers_the_clearly_more_likely_needle():
+    grid, image, entry, tip, u = _learned_case(6.0)
+    v = np.array([0.1, 1.0, -0.1])
+    v /= np.linalg.norm(v)
+    t_entry = np.array([3.0, -9.0, 14.0])  # on the y = -9 face, 17 mm long
+    source = _TwoTubes([(entry, tip, 0.9), (t_entry, t_entry + 17.0 * v, 0.5)])
+    frame = Frame(image, grid, t=0.0)
+
+    def first_tip(select, ratio=1.2):
+        params = VolumeTrackerParams(init_select=select, init_select_ratio=ratio,
+                                     image_refine=False)
+        return VolumeTracker("roi-rk", features=source, params=params, rng=0).update(frame).tip_mm
+
+    # RANSAC's support (Zhao) takes the long line; the needle is 1.8 times as likely
+    assert np.linalg.norm(first_tip("support") - (t_entry + 17.0 * v)) < 1.5
+    assert np.linalg.norm(first_tip("likelihood") - tip) < 1.0
+    # a competitor must be clearly more likely than RANSAC's choice (init_select_ratio)
+    assert np.linalg.norm(first_tip("likelihood", ratio=2.5) - (t_entry + 17.0 * v)) < 1.5
+    with pytest.raises(ValueError, match="init_select"):
+        VolumeTrackerParams(init_select="best")
