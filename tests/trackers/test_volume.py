@@ -406,6 +406,12 @@ def test_image_tip_falls_back_to_the_learned_drop_without_a_clear_change():
     flat = np.random.default_rng(6).rayleigh(20.0, grid.shape).clip(1, 255).astype(np.uint8)
     vol = _Volume(Frame(flat, grid), lk, learned=True)
     assert _image_tip(vol, line, 0.0, 12.0, p) == 12.0 - p.tip_cap_mm
+    # while tracking, the search is centred on the filter's predicted tip: a map whose drop
+    # fell 10 mm short (beyond image_tip_search_mm) is mended there
+    vol = _Volume(Frame(image, grid), lk, learned=True)
+    assert abs(_image_tip(vol, line, 0.0, 4.0, p) - 14.0) > 1.0
+    assert _image_tip(vol, line, 0.0, 4.0, p, predicted=13.0) == pytest.approx(14.0, abs=0.2)
+    vol = _Volume(Frame(flat, grid), lk, learned=True)
     # a search that cannot start one window beyond the entry: the drop stands
     assert _image_tip(vol, line, 0.0, 1.0, replace(p, image_tip_search_mm=1.0)) == \
         1.0 - p.tip_cap_mm
