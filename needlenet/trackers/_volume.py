@@ -711,7 +711,8 @@ def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
     ``predicted_direction``: orients the axis (and, with ``max_angle_deg``, constrains it,
     Chatelain eq. (22)). Without it, the tip is the end of the needle nearer to
     ``tip_hint`` when that point projects clearly off the needle's middle, and otherwise the
-    entry is the end nearer to the sector's boundary.
+    entry is the end nearer to the sector's boundary. ``predicted_tip`` (mm): while tracking,
+    where the image's tip is looked for with learned features (:func:`_image_tip`).
     """
     roi_voxels = 0 if region is None else int(region.size)
     cand, weights = _candidates(vol, region, threshold, p, fixed_size)
@@ -867,18 +868,18 @@ def _image_tip(vol: _Volume, fitted, a_entry: float, a_drop: float,
     fallback = a_drop - p.tip_cap_mm
     step = 0.5 * float(vol.spacing.min())
     w = max(1, int(round(p.image_tip_window_mm / step)))
-    centre, search = a_drop, p.image_tip_search_mm
+    middle, search = a_drop, p.image_tip_search_mm
     if predicted is not None:  # tracking: the filter's predicted tip is the better prior
-        centre, search = predicted, p.image_tip_track_search_mm
-    lo = max(centre - search, a_entry + p.image_tip_window_mm)
-    hi = centre + search
+        middle, search = predicted, p.image_tip_track_search_mm
+    lo = max(middle - search, a_entry + p.image_tip_window_mm)
+    hi = middle + search
     if hi <= lo:
         return fallback
     a = np.arange(lo - w * step, hi + (w + 1) * step, step)
-    centre = fitted.points_at(a)
+    on_axis = fitted.points_at(a)
     e1, e2 = _perpendiculars(fitted.principal_direction)
     offsets = p.image_tip_radius_mm * (_PROFILE_OFFSETS[:, :1] * e1 + _PROFILE_OFFSETS[:, 1:] * e2)
-    pts = centre[None, :, :] + offsets[:, None, :]  # (7, K, 3)
+    pts = on_axis[None, :, :] + offsets[:, None, :]  # (7, K, 3)
     values = vol.sample(vol.image.astype(np.float32, copy=False), pts)
     inside = vol.sample(vol.sector.view(np.uint8), pts, order=0) > 0
     n_in = inside.sum(0)
