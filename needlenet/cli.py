@@ -36,20 +36,6 @@ def _check_output(path: str | None, suffix: str, overwrite: bool, what: str) -> 
     return p
 
 
-def _parse_value(text: str):
-    low = text.lower()
-    if low in ("none", "null"):
-        return None
-    if low in ("true", "false"):
-        return low == "true"
-    for conv in (int, float):
-        try:
-            return conv(text)
-        except ValueError:
-            pass
-    return text
-
-
 # -- synth --------------------------------------------------------------------------------
 
 def _add_synth(sub) -> None:
@@ -83,6 +69,8 @@ def _add_synth(sub) -> None:
 def _cmd_synth(args) -> int:
     import synth
 
+    from .trackers._registry import parse_value
+
     if args.list:
         print(synth.describe())
         return 0
@@ -101,7 +89,7 @@ def _cmd_synth(args) -> int:
         if "=" not in item:
             raise CLIError(f"synth: --param {item!r}: expected NAME=VALUE")
         k, v = item.split("=", 1)
-        overrides[k.strip()] = _parse_value(v.strip())
+        overrides[k.strip()] = parse_value(v)
     cls = synth.SCENARIOS[args.scenario]
     names = {f for f in cls.__dataclass_fields__}
     if args.speed is not None:

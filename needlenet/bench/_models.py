@@ -55,13 +55,16 @@ def _distances(seq, i, grid, wall: bool = False):
     cl = np.asarray(seq.centerline_mm[i], float)
     if wall:
         cl = cl + wall_offsets(cl, float(seq.meta["needle"]["radius_mm"]))
+    d = synth.distance_to_polyline(_grid_points(grid), cl)
+    return d.reshape(grid.shape)
+
+
+def _grid_points(grid) -> np.ndarray:
+    """Every grid point (N, 3) in mm, point order (x, y, z); y = 0 on a 2D (x, z) grid."""
     axes = np.meshgrid(*[grid.axis_coords(a) for a in range(grid.ndim)], indexing="ij")
     if grid.ndim == 2:
-        pts = np.stack([axes[1].ravel(), np.zeros(axes[0].size), axes[0].ravel()], -1)
-    else:
-        pts = np.stack([axes[2].ravel(), axes[1].ravel(), axes[0].ravel()], -1)
-    d = synth.distance_to_polyline(pts, cl)
-    return d.reshape(grid.shape)
+        return np.stack([axes[1].ravel(), np.zeros(axes[0].size), axes[0].ravel()], -1)
+    return np.stack([axes[2].ravel(), axes[1].ravel(), axes[0].ravel()], -1)
 
 
 def map_peak(m: np.ndarray, half: int = 3) -> np.ndarray:
@@ -93,8 +96,7 @@ def axis_changepoint_tip(image: np.ndarray, grid, centerline: np.ndarray, radius
     tip = cl[-1]
     u = cl[-1] - cl[0]
     u = u / np.linalg.norm(u)
-    axes = np.meshgrid(*[grid.axis_coords(a) for a in range(3)], indexing="ij")
-    pts = np.stack([axes[2].ravel(), axes[1].ravel(), axes[0].ravel()], -1) - tip
+    pts = _grid_points(grid) - tip
     s = pts @ u
     perp2 = (pts * pts).sum(1) - s * s
     img = np.asarray(image, float).ravel()

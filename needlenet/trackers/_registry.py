@@ -47,20 +47,27 @@ def make_tracker(name: str, method: str, features: str = "classical", model: str
     return cls(method, features=source, **params)
 
 
+def parse_value(text: str):
+    """A setting's text as None, a boolean, an integer, a float or (otherwise) the text."""
+    text = text.strip()
+    low = text.lower()
+    if low in ("none", "null"):
+        return None
+    if low in ("true", "false"):
+        return low == "true"
+    for conv in (int, float):
+        try:
+            return conv(text)
+        except ValueError:
+            pass
+    return text
+
+
 def _convert(name: str, text: str, default):
     """``text`` as a value of the type of ``default`` (the field's default value)."""
     low = text.strip().lower()
     if default is None or low in ("none", "null"):
-        if low in ("none", "null"):
-            return None
-        for conv in (int, float):
-            try:
-                return conv(text)
-            except ValueError:
-                pass
-        if low in ("true", "false"):
-            return low == "true"
-        return text
+        return parse_value(text)
     if isinstance(default, bool):
         if low in ("true", "1", "yes", "on"):
             return True
@@ -101,13 +108,13 @@ def tracker_params(name: str, settings):
         raise ValueError(f"unknown tracker {name!r}; choose one of {', '.join(PARAMS)}")
     module, cls_name = PARAMS[name]
     cls = getattr(importlib.import_module(module), cls_name)
-    pairs = settings.items() if isinstance(settings, dict) else []
-    if not isinstance(settings, dict):
+    if isinstance(settings, dict):
+        pairs = list(settings.items())
+    else:
         for item in settings:
             if "=" not in item:
                 raise ValueError(f"parameter {item!r}: expected NAME=VALUE")
-            key, value = item.split("=", 1)
-            pairs.append((key.strip(), value))
+        pairs = [(k.strip(), v) for k, v in (item.split("=", 1) for item in settings)]
     top: dict = {}
     nested: dict = {}
     fields = {f.name: f for f in dataclasses.fields(cls)}

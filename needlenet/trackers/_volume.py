@@ -684,11 +684,25 @@ def _profile(vol: _Volume, model, a_values: np.ndarray, radius_mm: float,
     bright, which keeps the profile above the threshold where single needle voxels are dark
     (Zhao's needle voxels are drawn independently) or the axis is a fraction of a voxel off.
     """
-    centre = model.points_at(a_values)  # (K, 3)
+    pts = _cross_section(model, a_values, radius_mm)
+    return vol.sample(vol.values if array is None else array, pts).max(axis=0)
+
+
+def _cross_section(model, a_values: np.ndarray, radius_mm: float) -> np.ndarray:
+    """Points (7, K, 3) of the axis and of six lines ``radius_mm`` around it at ``a_values``."""
     e1, e2 = _perpendiculars(model.principal_direction)
     offsets = radius_mm * (_PROFILE_OFFSETS[:, :1] * e1 + _PROFILE_OFFSETS[:, 1:] * e2)
-    pts = centre[None, :, :] + offsets[:, None, :]  # (7, K, 3)
-    return vol.sample(vol.values if array is None else array, pts).max(axis=0)
+    return model.points_at(a_values)[None, :, :] + offsets[:, None, :]
+
+
+def _median_profile(vol: _Volume, model, a0: float, a1: float,
+                    p: VolumeTrackerParams) -> float:
+    """The median of the map along the axis from ``a0`` to ``a1`` (as :func:`_profile`)."""
+    step = 0.5 * float(vol.spacing.min())
+    a = np.arange(a0, a1 + step, step)
+    if a.size == 0:
+        return 0.0
+    return float(np.median(_profile(vol, model, a, p.profile_radius_mm)))
 
 
 def _distance_to_boundary(vol: _Volume, point, u, max_mm: float, step: float) -> float:
@@ -762,10 +776,8 @@ def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
             # the needle's own likelihood sets the level (a half-maximum): a learned map's
             # absolute scale varies with the contrast and the scanner, its drop at the tip
             # does not
-            step = 0.5 * float(vol.spacing.min())
-            a_in = np.arange(a0, a1 + step, step)
-            on = _profile(vol, fitted, a_in, p.profile_radius_mm)
-            level = max(p.likelihood_floor, p.likelihood_relative * float(np.median(on)))
+            level = max(p.likelihood_floor,
+                        p.likelihood_relative * _median_profile(vol, fitted, a0, a1, p))
     found = _locate(vol, fitted, a0, a1, level, p, r_in)
     if found is None:
         return _fail("no sample of the axis reaches the threshold", res.n_trials, roi_voxels,
@@ -876,10 +888,7 @@ def _image_tip(vol: _Volume, fitted, a_entry: float, a_drop: float,
     if hi <= lo:
         return fallback
     a = np.arange(lo - w * step, hi + (w + 1) * step, step)
-    on_axis = fitted.points_at(a)
-    e1, e2 = _perpendiculars(fitted.principal_direction)
-    offsets = p.image_tip_radius_mm * (_PROFILE_OFFSETS[:, :1] * e1 + _PROFILE_OFFSETS[:, 1:] * e2)
-    pts = on_axis[None, :, :] + offsets[:, None, :]  # (7, K, 3)
+    pts = _cross_section(fitted, a, p.image_tip_radius_mm)
     values = vol.sample(vol.image.astype(np.float32, copy=False), pts)
     inside = vol.sample(vol.sector.view(np.uint8), pts, order=0) > 0
     n_in = inside.sum(0)
@@ -905,15 +914,6 @@ def _image_tip(vol: _Volume, fitted, a_entry: float, a_drop: float,
         return fallback
     boundary = a[c[k]] - 0.5 * step  # between samples c - 1 and c
     return float(boundary) - p.image_tip_cap_mm
-
-
-def _needle_likelihood(vol: _Volume, m: _Measurement, p: VolumeTrackerParams) -> float:
-    """The median of the map along a measured needle, entry to tip (as :func:`_profile`)."""
-    step = 0.5 * float(vol.spacing.min())
-    a = np.arange(m.a_entry, m.a_tip + step, step)
-    if a.size == 0:
-        return 0.0
-    return float(np.median(_profile(vol, m.model, a, p.profile_radius_mm)))
 
 
 def _tip_on_map(vol: _Volume, fitted, a_entry: float, a_tip: float,
@@ -1219,7 +1219,7 @@ class VolumeTracker(Tracker):
             if m.ok and not choose:
                 return m
             if m.ok:
-                found.append((_needle_likelihood(vol, m, p), m))
+                found.append((_median_profile(vol, m.model, m.a_entry, m.a_tip, p), m))
             keep[active[res.inliers]] = False  # set the structure aside
         if found:
             score, best = found[0]  # RANSAC's own choice: the most support

@@ -200,18 +200,23 @@ def test_export_refuses_a_model_that_disagrees(tmp_path, monkeypatch):
     assert not out.exists() and list(tmp_path.iterdir()) == []
 
 
-def test_checkpoint_round_trip(tmp_path):
+def _save_checkpoint(module, path):
+    """Write a LightningModule's checkpoint without training it."""
     import lightning as L
 
+    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False)
+    trainer.strategy.connect(module)
+    trainer.save_checkpoint(path)
+    return path
+
+
+def test_checkpoint_round_trip(tmp_path):
     from training.module import LikelihoodModule
 
     net = _random_bn(NeedleNet2D()).eval()
     mod = LikelihoodModule(net, "inplane", 0.2)
-    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False)
-    trainer.strategy.connect(mod)
-    trainer.save_checkpoint(tmp_path / "c.ckpt")
-    loaded, hp = load_checkpoint(tmp_path / "c.ckpt")
+    loaded, hp = load_checkpoint(_save_checkpoint(mod, tmp_path / "c.ckpt"))
     assert hp["modality"] == "inplane"
     x = torch.randn(1, 1, 32, 32)
     with torch.no_grad():
@@ -224,19 +229,13 @@ def test_refined_network_round_trip_and_supervises_both_stages(tmp_path, tip_onl
     """A refined network comes back from its checkpoint with its refinement stage (the
     checkpoint names no architecture: it is read from the weights), and training supervises
     the first stage too: the loss is the sum of both stages' losses."""
-    import lightning as L
-
     from training.module import LikelihoodModule, likelihood_loss
 
     torch.manual_seed(2)
     net = _random_bn(NeedleNet3D(width=8, refine_blocks=3, oriented_taps=2 if tip_only else 0,
                                  refine_tip_only=tip_only)).eval()
     mod = LikelihoodModule(net, "volume", 0.5)
-    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
-                        enable_model_summary=False)
-    trainer.strategy.connect(mod)
-    trainer.save_checkpoint(tmp_path / "c.ckpt")
-    loaded, _ = load_checkpoint(tmp_path / "c.ckpt")
+    loaded, _ = load_checkpoint(_save_checkpoint(mod, tmp_path / "c.ckpt"))
     assert loaded.refine is not None and len(loaded.refine) == 3
     assert bool(loaded.tip_only) == tip_only and (loaded.oriented is not None) == tip_only
     x = torch.randn(2, 1, 16, 24, 20)
