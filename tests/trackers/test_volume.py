@@ -405,7 +405,8 @@ def test_image_tip_falls_back_to_the_learned_drop_without_a_clear_change():
     # the same line in noise alone: no change of 2.5 standard deviations; the drop stands
     flat = np.random.default_rng(6).rayleigh(20.0, grid.shape).clip(1, 255).astype(np.uint8)
     vol = _Volume(Frame(flat, grid), lk, learned=True)
-    assert _image_tip(vol, line, 0.0, 12.0, p) == 12.0 - p.tip_cap_mm
+    assert _image_tip(vol, line, 0.0, 12.0, replace(p, image_tip_min_effect=2.5)) == \
+        12.0 - p.tip_cap_mm
     # while tracking, the search is centred on the filter's predicted tip: a map whose drop
     # fell 10 mm short (beyond image_tip_search_mm) is mended there
     vol = _Volume(Frame(image, grid), lk, learned=True)
@@ -415,6 +416,32 @@ def test_image_tip_falls_back_to_the_learned_drop_without_a_clear_change():
     # a search that cannot start one window beyond the entry: the drop stands
     assert _image_tip(vol, line, 0.0, 1.0, replace(p, image_tip_search_mm=1.0)) == \
         1.0 - p.tip_cap_mm
+
+
+def test_image_tip_is_the_needles_end_not_a_change_of_the_tissue():
+    from needlenet.backends._ransac import LineModel
+    from needlenet.trackers._volume import _axis_change, _image_tip
+
+    grid, image, entry, tip, u = _needle_phantom()
+    # tissue 80 gray levels brighter across the whole section from 4 to 10 mm along the
+    # needle: along the axis the image drops more at 10 mm (80) than at the tip (the needle)
+    x, y, z = grid.point_grids()
+    t = (np.stack(np.broadcast_arrays(x, y, z), axis=-1) - entry) @ u
+    bright = np.clip(image.astype(float) + 80.0 * ((t >= 4.0) & (t <= 10.0)), 0, 255)
+    vol = _Volume(Frame(bright.astype(np.uint8), grid),
+                  Likelihood(np.zeros(grid.shape, np.float32)), learned=True)
+    line = LineModel(entry, u)
+    p = VolumeTrackerParams(image_tip_cap_mm=0.0)
+    raw = replace(p, image_tip_background_mm=None)
+    assert _image_tip(vol, line, 0.0, 12.0, raw) == pytest.approx(10.0, abs=0.3)
+    assert _image_tip(vol, line, 0.0, 12.0, p) == pytest.approx(14.0, abs=0.3)
+    # the needle's end is a clear change of its excess over the ring around it
+    step = 0.5 * float(vol.spacing.min())
+    w = int(round(p.image_tip_window_mm / step))
+    a = np.arange(4.0 - w * step, 20.0 + (w + 1) * step, step)
+    k, effect = _axis_change(vol, line, a, w, p)
+    assert a[k] == pytest.approx(14.0, abs=0.3)
+    assert effect > 2.0 * p.image_tip_min_effect
 
 
 def test_image_refinement_params_are_checked():
@@ -428,6 +455,9 @@ def test_image_refinement_params_are_checked():
         VolumeTrackerParams(image_tip_window_mm=0.0)
     with pytest.raises(ValueError, match="image_tip_cap_mm"):
         VolumeTrackerParams(image_tip_cap_mm=-0.1)
+    for ring in ((3.0, 2.0), (0.0, 2.0), (2.0,), [2.0, 3.0], (2.0, math.inf)):
+        with pytest.raises(ValueError, match="image_tip_background_mm"):
+            VolumeTrackerParams(image_tip_background_mm=ring)
 
 
 class _TwoTubes(FeatureSource):
