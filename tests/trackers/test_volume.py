@@ -206,8 +206,9 @@ class _TubeLikelihood(FeatureSource):
     kind = "learned"
     name = "tube"
 
-    def __init__(self, entry, tip):
+    def __init__(self, entry, tip, scale=1.0):
         self.entry, self.tip = np.asarray(entry, float), np.asarray(tip, float)
+        self.scale = scale  # the tube's peak likelihood
 
     def likelihood(self, frame, roi=None):
         x, y, z = frame.grid.point_grids()
@@ -219,7 +220,8 @@ class _TubeLikelihood(FeatureSource):
         u /= length
         t = np.clip((pts - self.entry) @ u, 0.0, length)
         d = np.linalg.norm(pts - (self.entry + t[..., None] * u), axis=-1)
-        return Likelihood(np.exp(-0.5 * (d / 0.4) ** 2).astype(np.float32), source=self.name)
+        return Likelihood((self.scale * np.exp(-0.5 * (d / 0.4) ** 2)).astype(np.float32),
+                          source=self.name)
 
 
 def _learned_case(length_mm):
@@ -246,6 +248,22 @@ def test_learned_likelihoods_drive_every_method(method):
     # the likelihood's image ends one cap (tip_cap_mm) beyond the tip, as Zhao's needle does
     assert np.linalg.norm(est.tip_mm - tip) < 1.0
     assert est.direction @ u > 0.99
+
+
+@pytest.mark.parametrize("floor, starts", [(0.25, False), (0.0, True)])
+def test_chatelain_starts_only_on_a_needle_the_map_believes_in(floor, starts):
+    # a faint structure (peak likelihood 0.2, median along it lower) appears at the volume's
+    # face: the change is detected and a line fits it, but the map does not call it a needle
+    grid, image, entry, tip, u = _learned_case(12.0)
+    source = _TubeLikelihood(entry, entry.copy(), scale=0.2)
+    tracker = VolumeTracker("chatelain", features=source, rng=0,
+                            params=VolumeTrackerParams(start_min_likelihood=floor))
+    tracker.update(Frame(image, grid, t=0.0))
+    source.tip = tip
+    est = tracker.update(Frame(image, grid, t=1.0))
+    assert (est.status == Status.TRACKING) == starts
+    if not starts:
+        assert "median likelihood" in est.extras["reason"]
 
 
 # --------------------------------------------------------------------------------------------
