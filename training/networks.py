@@ -64,7 +64,8 @@ class _OrientedSums(nn.Module):
 
     A needle's tip is where a line of needle evidence stops. The image holds it (given the
     true axis, a change point of the voxel means along it finds the tip within 1 mm in 37 of
-    the 40 held-out volumes at CR 2.0: ``needlenet.bench._models.axis_changepoint_tip``), but
+    the 40 held-out volumes at CR 2.0, 38 of them read against the tissue around the needle:
+    ``needlenet.bench._models.axis_changepoint_tip``), but
     a small CNN would need an oriented filter for every direction to see it. These fixed sums
     give the refinement stage those orientations at no learned cost; what is summed (the
     first stage's maps) and how the sums are read are learned."""

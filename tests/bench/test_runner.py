@@ -145,6 +145,14 @@ def test_axis_change_point_finds_the_end_of_a_tube():
     line = np.stack([entry, tip + 5 * u])
     est = axis_changepoint_tip(img.astype(np.uint8), g, line, 0.53)
     assert np.linalg.norm(est - tip) <= 0.6
+    # tissue 60 grey levels brighter across the section from 8 to 3 mm before the tip: the
+    # raw mean drops most where the tissue does, the needle's excess over the ring at the tip
+    s = (pts - tip) @ u
+    img2 = img + 60.0 * ((s >= -8.0) & (s <= -3.0)).reshape(g.shape)
+    raw = axis_changepoint_tip(img2.clip(1, 255).astype(np.uint8), g, line, 0.53, ring_mm=None)
+    assert (raw - tip) @ u == pytest.approx(-3.0, abs=0.6)
+    est = axis_changepoint_tip(img2.clip(1, 255).astype(np.uint8), g, line, 0.53)
+    assert np.linalg.norm(est - tip) <= 0.6
 
 
 def test_models_bench_reports_the_volume_trackers_tip():
