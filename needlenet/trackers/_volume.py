@@ -103,12 +103,12 @@ _SELECT_CANDIDATES = 5000
 # A tip hint decides the orientation when it projects farther than this fraction of the
 # needle's length from its middle.
 _HINT_MARGIN = 0.1
-# Offsets, perpendicular to the axis and in units of ``profile_radius_mm``, of the lines along
-# which the tip profile is sampled: the axis itself and six lines around it.
 # The tissue around the needle (image_tip_background_mm): lines on a ring around the axis,
 # this many angles at each of three radii; a position counts where this many are in the sector.
 _RING_ANGLES = 12
 _RING_MIN_SAMPLES = 6
+# Offsets, perpendicular to the axis and in units of ``profile_radius_mm``, of the lines along
+# which the tip profile is sampled: the axis itself and six lines around it.
 _PROFILE_OFFSETS = np.array(
     [[0.0, 0.0]] + [[math.cos(a), math.sin(a)] for a in np.arange(6) * math.pi / 3]
 )
@@ -251,7 +251,9 @@ class VolumeTrackerParams:
         The image's change point lies this far beyond the tip (the needle's echo spreads
         past its end), which is subtracted: a median 0.32-0.35 mm on ``volume`` sequences of
         training seeds (5,000,000-5,000,005; CR 3.0, 4.7 and 5.0, 96^3 and 128^3 volumes,
-        alpha 0 and 60 degrees), not on the held-out seeds the benchmarks report. 0.35 mm.
+        alpha 0 and 60 degrees), not on the held-out seeds the benchmarks report; with the
+        tissue ring subtracted (``image_tip_background_mm``) 0.34 mm on seeds 5,000,000-
+        5,000,005 at CR 2.0 and 5.0 (96^3) and CR 2.0 (128^3, alpha 0). 0.35 mm.
     image_tip_min_effect : float
         The image's change must be at least this many pooled standard deviations of the
         profile within its two windows, or the learned drop stands. Measured with the known
