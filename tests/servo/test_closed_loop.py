@@ -139,6 +139,21 @@ def test_chatelain_stops_safely_when_the_needle_is_lost():
     assert np.all(dv[:, :2] <= cfg.a_limit_mm_s2 + 1e-6)
 
 
+def test_chatelain_rows_pool_seeds_and_count_the_runs_that_lost_the_needle():
+    from needlenet.servo._api import LOST_RMSE_MM, _chatelain_row
+
+    def run(rmse):
+        return {"latency_ms": np.ones(3), "imaging_ms": np.ones(3), "stopped": False,
+                "t": np.arange(3.0), "metrics": {"rmse_p_mm": rmse, "in_plane_fraction": 1.0}}
+
+    values = [0.4, 0.6, LOST_RMSE_MM + 0.1, 25.0, math.nan]
+    row = _chatelain_row([run(v) for v in values], "learned", "motion", 0)
+    assert row["repeats"] == 5 and row["lost_runs"] == 3
+    assert row["rmse_p_mm"] == pytest.approx((0.4 + 0.6 + LOST_RMSE_MM + 0.1 + 25.0) / 4)
+    assert row["rmse_p_mm_median"] == pytest.approx((0.6 + LOST_RMSE_MM + 0.1) / 2)
+    assert row["rmse_p_mm_runs"][:4] == values[:4]
+
+
 def test_ye_closed_through_learned_images():
     """Frames imaged from the probe's pose, the axial ONNX model's detections accepted by the
     calibrated echo level: the tip is tracked, the probe stays just behind it most of the
