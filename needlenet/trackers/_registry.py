@@ -15,11 +15,8 @@ TRACKERS = {
     "axial": ("needlenet.trackers._axial", "AxialTracker"),
 }
 FEATURE_KINDS = ("classical", "learned")
-PARAMS = {
-    "inplane": ("needlenet.trackers._inplane", "InplaneParams"),
-    "volume": ("needlenet.trackers._volume", "VolumeTrackerParams"),
-    "axial": ("needlenet.trackers._axial", "AxialParams"),
-}
+# each tracker's parameter dataclass, in the tracker's module
+PARAMS = {"inplane": "InplaneParams", "volume": "VolumeTrackerParams", "axial": "AxialParams"}
 
 
 def tracker_class(name: str):
@@ -106,8 +103,8 @@ def tracker_params(name: str, settings):
     naming them."""
     if name not in PARAMS:
         raise ValueError(f"unknown tracker {name!r}; choose one of {', '.join(PARAMS)}")
-    module, cls_name = PARAMS[name]
-    cls = getattr(importlib.import_module(module), cls_name)
+    cls_name = PARAMS[name]
+    cls = getattr(importlib.import_module(TRACKERS[name][0]), cls_name)
     if isinstance(settings, dict):
         pairs = list(settings.items())
     else:

@@ -531,11 +531,15 @@ class _Volume:
         """Fractional array indices (..., 3) of points (..., 3) in mm, point order."""
         return (np.asarray(points_mm, float)[..., ::-1] - self.origin) / self.spacing
 
-    def sample(self, array: np.ndarray, points_mm: np.ndarray, order: int = 1) -> np.ndarray:
-        """Values of ``array`` at points (..., 3) in mm; 0 outside the volume."""
+    def sample(self, array: np.ndarray, points_mm: np.ndarray, order: int = 1,
+               output=None) -> np.ndarray:
+        """Values of ``array`` at points (..., 3) in mm; 0 outside the volume. ``output``: the
+        values' dtype (e.g. float32 for a uint8 image, interpolated without rounding and
+        without converting the whole array first); the array's own when None."""
         pts = np.asarray(points_mm, float)
         idx = self.to_index(pts.reshape(-1, 3))
-        out = ndimage.map_coordinates(array, idx.T, order=order, mode="constant", cval=0.0)
+        out = ndimage.map_coordinates(array, idx.T, output=output, order=order,
+                                      mode="constant", cval=0.0)
         return out.reshape(pts.shape[:-1])
 
 
@@ -979,14 +983,15 @@ def _axis_change(vol: _Volume, fitted, a: np.ndarray, w: int,
     var = ((s2[c[k]] - s2[c[k] - w]) - nb[k] * mb[k] ** 2
            + (s2[c[k] + w] - s2[c[k]]) - na[k] * ma[k] ** 2) / (nb[k] + na[k])
     sd = math.sqrt(max(var, 0.0))
-    effect = math.inf if sd == 0.0 and change[k] > 0 else float(change[k] / sd) if sd > 0 else 0.0
-    return int(c[k]), effect
+    if sd > 0.0:
+        return int(c[k]), float(change[k] / sd)
+    return int(c[k]), (math.inf if change[k] > 0 else 0.0)  # a noiseless profile
 
 
 def _section_mean(vol: _Volume, pts: np.ndarray, min_samples: int):
     """The image's mean over the lines ``pts`` (L, K, 3) at each of the K positions, over the
     samples inside the sector, and where at least ``min_samples`` of them are."""
-    values = vol.sample(vol.image.astype(np.float32, copy=False), pts)
+    values = vol.sample(vol.image, pts, output=np.float32)
     inside = vol.sample(vol.sector.view(np.uint8), pts, order=0) > 0
     n_in = inside.sum(0)
     valid = n_in >= min_samples
