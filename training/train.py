@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from needlenet.features._resample import NORMALIZATIONS
+
 from .data import DataConfig, SynthDataModule, target_reference
 from .module import LikelihoodModule
 from .networks import build_network, count_parameters
@@ -31,6 +33,7 @@ class TrainConfig:
     refine_blocks: int = 0  # a refinement stage of this many blocks (0: none)
     oriented_taps: int = 0  # one-sided sums along 13 directions in the refinement (0: none)
     refine_tip_only: bool = False  # the refinement replaces only the tip, from detached inputs
+    local_window: int = 0  # input also over its local mean, window in model voxels (0: off)
     tip_softmax_weight: float = 0.0  # weight of training.module.tip_softmax_loss (0: off)
     pos_weight: tuple[float, float] = (20.0, 50.0)  # BCE weight of positives: shaft, tip
     out_dir: str = "runs/inplane"
@@ -76,8 +79,10 @@ def train(config: TrainConfig) -> dict:
     torch.manual_seed(config.data.seed)
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    norm = NORMALIZATIONS[config.data.normalization]
     net = build_network(config.modality, config.width, config.refine_blocks,
-                        config.oriented_taps, config.refine_tip_only)
+                        config.oriented_taps, config.refine_tip_only, config.local_window,
+                        local_offset=norm["mean"] / norm["std"])  # x + offset ~ grey level
     module = LikelihoodModule(net, config.modality, config.data.spacing_mm, lr=config.lr,
                               max_steps=config.steps,
                               target_reference=target_reference(config.modality),

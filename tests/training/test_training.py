@@ -320,3 +320,55 @@ def test_oriented_sums_match_scipy_correlation(dims, taps):
                 w[tuple(taps + sign * k * v for v in d)] = 1.0 / taps
             ref = ndimage.correlate(m.astype(float), w, mode="constant", cval=0.0)
             np.testing.assert_allclose(out[2 * i + j], ref, atol=1e-5)
+
+
+@pytest.mark.parametrize("dims,window", [(2, 5), (3, 7)])
+def test_local_contrast_matches_scipy_box_means(dims, window):
+    """The second input channel is g / (box mean of g) - 1 with g = x + offset, where the box
+    mean leaves out the padding at the borders and the zero voxels outside a sector; checked
+    against scipy.ndimage.uniform_filter (zero padding, divided by the filtered masks)."""
+    from scipy import ndimage
+
+    from training.networks import _LocalContrast
+
+    rng = np.random.default_rng(5)
+    shape = (13, 11, 15)[:dims]
+    offset = 1.4
+    g = rng.uniform(0.2, 3.0, size=shape)
+    g[(slice(0, 3),) * dims] = 0.0  # outside the sector
+    x = (g - offset).astype(np.float32)
+    out = _LocalContrast(dims, window, offset)(torch.from_numpy(x)[None, None])[0].numpy()
+    assert out.shape == (2, *shape)
+    np.testing.assert_array_equal(out[0], x)  # the image itself is the first channel
+
+    def box(a):
+        return ndimage.uniform_filter(a, window, mode="constant", cval=0.0)
+
+    in_array = box(np.ones(shape))
+    mean_g = box(g) / in_array
+    inside = box((g > 0).astype(float)) / in_array
+    ref = g * inside / (mean_g + 1e-3) - 1.0
+    np.testing.assert_allclose(out[1], ref, atol=1e-4)
+    # a brighter region reads the same: the channel is a ratio
+    scaled = _LocalContrast(dims, window, offset)(torch.from_numpy(
+        (2.5 * g - offset).astype(np.float32))[None, None])[0, 1].numpy()
+    np.testing.assert_allclose(scaled[g > 0], out[1][g > 0], atol=2e-3)
+    with pytest.raises(ValueError, match="odd"):
+        _LocalContrast(dims, 6, offset)
+
+
+def test_local_contrast_network_round_trip_and_export(tmp_path):
+    """A network with the local-contrast input comes back from its checkpoint with the same
+    window and offset (read from the weights), and exports with onnxruntime agreeing."""
+    from training.module import LikelihoodModule
+
+    torch.manual_seed(3)
+    net = _random_bn(NeedleNet3D(width=8, local_window=5, local_offset=1.0)).eval()
+    loaded, _ = load_checkpoint(_save_checkpoint(LikelihoodModule(net, "volume", 0.5),
+                                                 tmp_path / "c.ckpt"))
+    assert int(loaded.local.window) == 5 and float(loaded.local.offset) == 1.0
+    x = torch.randn(1, 1, 16, 24, 20)
+    with torch.no_grad():
+        assert torch.allclose(loaded(x), net(x))
+    r = export_onnx(loaded, "volume", 0.5, tmp_path / "m.onnx", normalization="median")
+    assert r["max_abs_diff"] <= 1e-4
