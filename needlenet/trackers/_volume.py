@@ -345,12 +345,25 @@ class VolumeTrackerParams:
         started on such structures 20-23 mm from the tip, while the needle was out of the
         volume, with medians of 0.03-0.11 (the needle's own starts on seeds 0, 2 and 3:
         0.56-0.62). P-hat RMSE on seeds 0-6 without the floor 0.61, 0.30, 12.3, 7.2, 0.70,
-        11.4, 0.48 mm; with 0.25: 0.61, 0.30, 0.27, 0.35, 0.70, 11.4, 0.48 mm (seed 5 starts on
-        the needle while its tip is outside the volume; classical features fail there too).
+        11.4, 0.48 mm; with 0.25: 0.61, 0.30, 0.27, 0.35, 0.70, 11.4, 0.48 mm (seed 5 started on
+        the needle while its tip was outside the volume: ``start_tip_margin_mm``).
         Not used by roi-rk's initialisation: at Zhao's CR 2.0 a needle's median can be 0.1-0.2,
         and a floor of 0.2 there moved the learned roi-rk's failures on 18 training backgrounds
         (Table 3 protocol, seeds from 6,000,000, 7,000,000 and 8,000,000) from 38 / 8% to
         43 / 3% at CR 2.0 / 2.5.
+    start_tip_margin_mm : float
+        Chatelain's tracker starts only on a needle whose tip is at least this far inside the
+        sector, measured along the needle (0: no test). Chatelain tracks a needle inserted
+        into the volume; a needle that runs on out of the volume shows its exit, not its tip,
+        and a tracker started there follows the exit. In the moving phantom (servo, motion
+        run, seed 5) the tissue's motion carried the tip out of the volume before 5 mm were
+        in (4.86 mm at the last volume), and 16 volumes later the learned tracker started on
+        the needle crossing the volume, its "tip" on the face: P-hat RMSE 11.4 mm; with the
+        margin it waited until the tip was back in view, 0.43 mm. The same test refuses a fit
+        oriented backwards, its "tip" on the entry's face (classical, misalignment run, seed
+        1: 0.6 mm from the boundary; it started correctly one volume later). Ours: 1.5 mm,
+        beyond the tip cap (0.6 mm) and a voxel: a needle cut by the boundary is refused, a
+        real tip waits a volume or two.
     q_control, r_control : float
         Noise of the constant-velocity model of eqs. (4)-(9) (mm^2/s^3, mm^2); q allows the
         velocity reversal of a withdrawal within a volume or two.
@@ -429,6 +442,7 @@ class VolumeTrackerParams:
     detection_window: int = 10
     start_length_mm: float = 5.0
     start_min_likelihood: float = 0.25
+    start_tip_margin_mm: float = 1.5
     q_control: float = 50.0
     r_control: float = 0.25
     p0_control_velocity: float = 100.0
@@ -452,7 +466,7 @@ class VolumeTrackerParams:
                                  f"got {value}")
         for name in ("min_sample_distance_mm", "max_gap_mm", "speckle_search_mm",
                      "voi_margin_mm", "tip_cap_mm", "entry_margin_mm", "tip_window_mm",
-                     "image_tip_cap_mm", "start_min_likelihood"):
+                     "image_tip_cap_mm", "start_min_likelihood", "start_tip_margin_mm"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f"VolumeTrackerParams.{name} must be finite and >= 0, "
@@ -761,6 +775,24 @@ def _distance_to_boundary(vol: _Volume, point, u, max_mm: float, step: float) ->
     inside = vol.sample(vol.sector.view(np.uint8), point + s[:, None] * u, order=0) > 0
     out = np.flatnonzero(~inside)
     return float(s[out[0]]) if out.size else max_mm
+
+
+def _run_out_distance(vol: _Volume, point, u, max_mm: float, run_mm: float = 1.0) -> float:
+    """Distance from ``point`` along ``u`` to where the ray leaves the sector for good: the
+    first sample from which it stays outside for ``run_mm`` (outside the array counts as
+    outside). Unlike :func:`_distance_to_boundary` it steps over the isolated zero voxels of
+    dark speckle inside the sector (a tenth of a Cartesian volume's voxels in the servo's
+    phantom are 0, mostly alone or in small clusters)."""
+    step = 0.25 * float(vol.spacing.min())
+    s = np.arange(1, int((max_mm + run_mm) / step) + 1) * step
+    inside = vol.sample(vol.sector.view(np.uint8), point + s[:, None] * u, order=0) > 0
+    n = max(int(round(run_mm / step)), 1)
+    # out_run[i]: samples i .. i + n - 1 all outside
+    out = np.r_[(~inside).astype(np.int32), np.ones(n, np.int32)]
+    c = np.r_[0, np.cumsum(out)]
+    out_run = (c[n:n + s.size] - c[:s.size]) == n
+    first = np.flatnonzero(out_run)
+    return float(min(s[first[0]], max_mm)) if first.size else max_mm
 
 
 def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
@@ -1532,6 +1564,11 @@ class VolumeTracker(Tracker):
             elif m.entry_gap_mm > p.entry_margin_mm:
                 m = _fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
                           f"mm inside the sector", m.trials, m.roi_voxels, m.inliers)
+            elif (tip_gap := _run_out_distance(vol, m.tip, m.direction,
+                                               p.start_tip_margin_mm)) < p.start_tip_margin_mm:
+                m = _fail(f"the needle runs out of the volume: its tip is {tip_gap:.1f} mm from "
+                          f"the sector's boundary (< {p.start_tip_margin_mm} mm)", m.trials,
+                          m.roi_voxels, m.inliers)
             elif vol.learned and (level := _median_profile(vol, m.model, m.a_entry, m.a_tip, p)) \
                     < p.start_min_likelihood:
                 m = _fail(f"the map does not see a needle there: median likelihood {level:.2f} "

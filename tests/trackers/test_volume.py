@@ -18,7 +18,9 @@ from needlenet.trackers._volume import (
     VolumeTracker,
     VolumeTrackerParams,
     _cylinder,
+    _distance_to_boundary,
     _needle_run,
+    _run_out_distance,
     _Volume,
 )
 from synth import Grid
@@ -266,9 +268,46 @@ def test_chatelain_starts_only_on_a_needle_the_map_believes_in(floor, starts):
         assert "median likelihood" in est.extras["reason"]
 
 
+@pytest.mark.parametrize("margin, starts", [(1.5, False), (0.0, True)])
+def test_chatelain_waits_while_the_needle_runs_out_of_the_volume(margin, starts):
+    # a needle inserted through the volume: its visible part ends on the far face (x = 10.6
+    # mm, 21 mm along it), so what a fit calls its tip is where the volume ends, not the tip
+    grid, image, entry, tip, u = _learned_case(30.0)
+    source = _TubeLikelihood(entry, entry.copy())
+    tracker = VolumeTracker("chatelain", features=source, rng=0,
+                            params=VolumeTrackerParams(start_tip_margin_mm=margin))
+    tracker.update(Frame(image, grid, t=0.0))
+    source.tip = tip
+    est = tracker.update(Frame(image, grid, t=1.0))
+    assert (est.status == Status.TRACKING) == starts
+    if starts:  # the tip it would track lies on a face (both ends of what it sees do)
+        assert min(abs(est.tip_mm[0] + 9.0), abs(est.tip_mm[0] - 10.6)) < 1.0
+    else:
+        assert "runs out of the volume" in est.extras["reason"]
+
+
 # --------------------------------------------------------------------------------------------
 # Pieces
 # --------------------------------------------------------------------------------------------
+
+
+def test_run_out_distance_steps_over_dark_speckle_to_the_sector_boundary():
+    # a sector ending at a plane, with a tenth of the voxels inside it 0 (dark speckle, as in
+    # the servo's Cartesian volumes): the ray leaves the sector at the plane, not at the first
+    # zero voxel
+    grid = Grid((30, 30, 60), (0.5, 0.5, 0.5), (0.0, 0.0, 0.0))
+    rng = np.random.default_rng(7)
+    image = rng.integers(1, 200, grid.shape).astype(np.uint8)
+    image[rng.random(grid.shape) < 0.1] = 0
+    x = grid.axis_coords(2)
+    image[:, :, x > 20.0] = 0  # outside the sector beyond x = 20 mm
+    vol = _Volume(Frame(image, grid), Likelihood(image.astype(np.float32)), learned=False)
+    start, u = np.array([5.0, 7.0, 7.0]), np.array([1.0, 0.0, 0.0])
+    d = _run_out_distance(vol, start, u, 30.0)
+    assert abs(d - 15.0) <= 0.5  # the boundary lies between the voxel centres 20.0 and 20.5
+    assert _distance_to_boundary(vol, start, u, 30.0, 0.125) < 5.0  # stops at a speckle zero
+    assert _run_out_distance(vol, start, u, 4.0) == 4.0  # capped at max_mm
+    assert _run_out_distance(vol, start, -u, 30.0) <= 5.5  # the array's face counts as out
 
 
 def test_cylinder_roi_matches_brute_force():
