@@ -19,6 +19,7 @@ from needlenet.trackers._volume import (
     VolumeTrackerParams,
     _cylinder,
     _distance_to_boundary,
+    _needle_contrast,
     _needle_run,
     _run_out_distance,
     _Volume,
@@ -289,6 +290,25 @@ def test_chatelain_waits_while_the_needle_runs_out_of_the_volume(margin, starts)
 # --------------------------------------------------------------------------------------------
 # Pieces
 # --------------------------------------------------------------------------------------------
+
+
+def test_needle_contrast_is_the_needle_over_the_tissue_ring():
+    # a needle three times its tissue reads 3, the tissue alone reads 1, whatever the level
+    from needlenet.backends._ransac import LineModel
+
+    grid = Grid((40, 40, 40), (0.5, 0.5, 0.5), (0.0, 0.0, 0.0))
+    x, y, z = grid.point_grids()
+    pts = np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+    d = np.linalg.norm(pts[..., 1:] - np.array([10.0, 10.0]), axis=-1)  # line along x
+    p = VolumeTrackerParams()
+    axis = LineModel(np.array([5.0, 10.0, 10.0]), np.array([1.0, 0.0, 0.0]))
+    for tissue in (30.0, 60.0):
+        image = np.where(d <= 1.1, 3 * tissue, tissue).astype(np.uint8)
+        vol = _Volume(Frame(image, grid), Likelihood(image.astype(np.float32)), learned=False)
+        assert _needle_contrast(vol, axis, 0.0, 8.0, p) == pytest.approx(3.0, rel=0.05)
+        flat = np.full(grid.shape, tissue, np.uint8)
+        vol = _Volume(Frame(flat, grid), Likelihood(flat.astype(np.float32)), learned=False)
+        assert _needle_contrast(vol, axis, 0.0, 8.0, p) == pytest.approx(1.0, rel=1e-3)
 
 
 def test_run_out_distance_steps_over_dark_speckle_to_the_sector_boundary():
