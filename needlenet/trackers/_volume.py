@@ -359,9 +359,11 @@ class VolumeTrackerParams:
         run, seed 5) the tissue's motion carried the tip out of the volume before 5 mm were
         in (4.86 mm at the last volume), and 16 volumes later the learned tracker started on
         the needle crossing the volume, its "tip" on the face: P-hat RMSE 11.4 mm; with the
-        margin it waited until the tip was back in view, 0.43 mm. The same test refuses a fit
-        oriented backwards, its "tip" on the entry's face (classical, misalignment run, seed
-        1: 0.6 mm from the boundary; it started correctly one volume later). Ours: 1.5 mm,
+        margin it waited until the tip was back in view, 0.43 mm. The boundary is where the
+        ray leaves the sector for 1 mm (``_run_out_distance``): measured to the first zero
+        voxel, dark speckle refused a correct start (classical, misalignment run, seed 1, "0.6
+        mm from the boundary"). A fit oriented backwards has its "tip" on the entry's face
+        and is refused too. Ours: 1.5 mm,
         beyond the tip cap (0.6 mm) and a voxel: a needle cut by the boundary is refused, a
         real tip waits a volume or two.
     start_min_contrast : float
