@@ -363,9 +363,8 @@ class VolumeTrackerParams:
         ray leaves the sector for 1 mm (``_run_out_distance``): measured to the first zero
         voxel, dark speckle refused a correct start (classical, misalignment run, seed 1, "0.6
         mm from the boundary"). A fit oriented backwards has its "tip" on the entry's face
-        and is refused too. Ours: 1.5 mm,
-        beyond the tip cap (0.6 mm) and a voxel: a needle cut by the boundary is refused, a
-        real tip waits a volume or two.
+        and is refused too. Ours: 1.5 mm, beyond the tip cap (0.6 mm) and a voxel: a needle
+        cut by the boundary is refused, a real tip waits a volume or two.
     start_min_contrast : float
         For classical features: Chatelain's tracker starts only on a needle whose image is
         at least this many times the tissue 2-3 mm around it (median along the fit of the

@@ -253,17 +253,23 @@ def test_learned_likelihoods_drive_every_method(method):
     assert est.direction @ u > 0.99
 
 
+def _chatelain_after_appearing(length_mm, scale, **params):
+    """Chatelain's estimate on the volume where a tube of likelihood (peak ``scale``) of
+    ``length_mm`` appears from the face of ``_learned_case``."""
+    grid, image, entry, tip, _ = _learned_case(length_mm)
+    source = _TubeLikelihood(entry, entry.copy(), scale=scale)
+    tracker = VolumeTracker("chatelain", features=source, rng=0,
+                            params=VolumeTrackerParams(**params))
+    tracker.update(Frame(image, grid, t=0.0))
+    source.tip = tip
+    return tracker.update(Frame(image, grid, t=1.0))
+
+
 @pytest.mark.parametrize("floor, starts", [(0.25, False), (0.0, True)])
 def test_chatelain_starts_only_on_a_needle_the_map_believes_in(floor, starts):
     # a faint structure (peak likelihood 0.2, median along it lower) appears at the volume's
     # face: the change is detected and a line fits it, but the map does not call it a needle
-    grid, image, entry, tip, u = _learned_case(12.0)
-    source = _TubeLikelihood(entry, entry.copy(), scale=0.2)
-    tracker = VolumeTracker("chatelain", features=source, rng=0,
-                            params=VolumeTrackerParams(start_min_likelihood=floor))
-    tracker.update(Frame(image, grid, t=0.0))
-    source.tip = tip
-    est = tracker.update(Frame(image, grid, t=1.0))
+    est = _chatelain_after_appearing(12.0, 0.2, start_min_likelihood=floor)
     assert (est.status == Status.TRACKING) == starts
     if not starts:
         assert "median likelihood" in est.extras["reason"]
@@ -273,13 +279,7 @@ def test_chatelain_starts_only_on_a_needle_the_map_believes_in(floor, starts):
 def test_chatelain_waits_while_the_needle_runs_out_of_the_volume(margin, starts):
     # a needle inserted through the volume: its visible part ends on the far face (x = 10.6
     # mm, 21 mm along it), so what a fit calls its tip is where the volume ends, not the tip
-    grid, image, entry, tip, u = _learned_case(30.0)
-    source = _TubeLikelihood(entry, entry.copy())
-    tracker = VolumeTracker("chatelain", features=source, rng=0,
-                            params=VolumeTrackerParams(start_tip_margin_mm=margin))
-    tracker.update(Frame(image, grid, t=0.0))
-    source.tip = tip
-    est = tracker.update(Frame(image, grid, t=1.0))
+    est = _chatelain_after_appearing(30.0, 1.0, start_tip_margin_mm=margin)
     assert (est.status == Status.TRACKING) == starts
     if starts:  # the tip it would track lies on a face (both ends of what it sees do)
         assert min(abs(est.tip_mm[0] + 9.0), abs(est.tip_mm[0] - 10.6)) < 1.0
