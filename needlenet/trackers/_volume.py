@@ -90,6 +90,8 @@ __all__ = ["VolumeTracker", "VolumeTrackerParams"]
 _NO_LIMIT_MM = 1e9
 # Fewest candidates of the insertion detection: a geometric median needs a few points.
 _MIN_INSERTION_CANDIDATES = 10
+# A ray has left the sector where it stays outside for this long (_run_out_distance).
+_RUN_OUT_MM = 1.0
 # Directions of the rays along which the distance to the sector's boundary is measured: the
 # 26 neighbours of a voxel.
 _RAYS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
@@ -783,30 +785,35 @@ def _median_profile(vol: _Volume, model, a0: float, a1: float,
     return float(np.median(_profile(vol, model, a, p.profile_radius_mm)))
 
 
-def _distance_to_boundary(vol: _Volume, point, u, max_mm: float, step: float) -> float:
-    """Distance from ``point`` along ``u`` to the first voxel outside the sector."""
-    s = np.arange(1, int(max_mm / step) + 1) * step
-    inside = vol.sample(vol.sector.view(np.uint8), point + s[:, None] * u, order=0) > 0
-    out = np.flatnonzero(~inside)
-    return float(s[out[0]]) if out.size else max_mm
+def _first_run_out(inside: np.ndarray, n: int) -> np.ndarray:
+    """Per ray (rows of ``inside``, (..., S) samples along each): the index of the first
+    sample from which the ray stays outside the sector for ``n`` samples (samples past the
+    end count as outside, so a ray still inside at its end gives ``S``)."""
+    inside = np.asarray(inside, bool)
+    S = inside.shape[-1]
+    out = np.concatenate([(~inside).astype(np.int32),
+                          np.ones(inside.shape[:-1] + (n,), np.int32)], axis=-1)
+    c = np.concatenate([np.zeros(inside.shape[:-1] + (1,), np.int64),
+                        np.cumsum(out, axis=-1)], axis=-1)
+    run = (c[..., n:n + S] - c[..., :S]) == n  # samples i .. i + n - 1 all outside
+    return np.where(run.any(axis=-1), np.argmax(run, axis=-1), S)
 
 
-def _run_out_distance(vol: _Volume, point, u, max_mm: float, run_mm: float = 1.0) -> float:
-    """Distance from ``point`` along ``u`` to where the ray leaves the sector for good: the
-    first sample from which it stays outside for ``run_mm`` (outside the array counts as
-    outside). Unlike :func:`_distance_to_boundary` it steps over the isolated zero voxels of
-    dark speckle inside the sector (a tenth of a Cartesian volume's voxels in the servo's
-    phantom are 0, mostly alone or in small clusters)."""
+def _run_out_distance(vol: _Volume, point, u, max_mm: float,
+                      run_mm: float = _RUN_OUT_MM) -> float:
+    """Distance from ``point`` along ``u`` to the sector's boundary: where the ray leaves the
+    sector for good, the first sample from which it stays outside for ``run_mm`` (outside the
+    array counts as outside); ``max_mm`` when it does not within that distance.
+
+    Not the first zero voxel: scan-converted volumes are 0 outside the sector, but dark
+    speckle inside it is 0 too (a tenth of a Cartesian volume's voxels in the servo's phantom,
+    mostly alone or in small clusters; 0.08% in the synth sector volumes), and a first-zero
+    test ends the sector at the first of them."""
     step = 0.25 * float(vol.spacing.min())
     s = np.arange(1, int((max_mm + run_mm) / step) + 1) * step
     inside = vol.sample(vol.sector.view(np.uint8), point + s[:, None] * u, order=0) > 0
-    n = max(int(round(run_mm / step)), 1)
-    # out_run[i]: samples i .. i + n - 1 all outside
-    out = np.r_[(~inside).astype(np.int32), np.ones(n, np.int32)]
-    c = np.r_[0, np.cumsum(out)]
-    out_run = (c[n:n + s.size] - c[:s.size]) == n
-    first = np.flatnonzero(out_run)
-    return float(min(s[first[0]], max_mm)) if first.size else max_mm
+    first = int(_first_run_out(inside, max(int(round(run_mm / step)), 1)))
+    return float(min(s[first], max_mm)) if first < s.size else max_mm
 
 
 def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
@@ -856,11 +863,8 @@ def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
             # The needle comes in through the sector's boundary, so its entry is the end of
             # the inliers nearer to the boundary along the axis.
             far = float(np.linalg.norm(vol.spacing * vol.shape))
-            step = 0.5 * float(vol.spacing.min())
-            to_lo = _distance_to_boundary(vol, fitted.points_at(np.array([a0]))[0], -u, far,
-                                          step)
-            to_hi = _distance_to_boundary(vol, fitted.points_at(np.array([a1]))[0], u, far,
-                                          step)
+            to_lo = _run_out_distance(vol, fitted.points_at(np.array([a0]))[0], -u, far)
+            to_hi = _run_out_distance(vol, fitted.points_at(np.array([a1]))[0], u, far)
             flip = to_hi < to_lo
         if flip:
             fitted = fitted.oriented(-u)
@@ -917,7 +921,7 @@ def _measure(vol: _Volume, region: np.ndarray | None, threshold: float,
     direction = (tip - entry) / np.linalg.norm(tip - entry)
     n_inliers = int(np.count_nonzero(fitted.residuals(pts) < r_in))
     far = float(np.linalg.norm(vol.spacing * vol.shape))
-    gap = _distance_to_boundary(vol, entry, -direction, far, 0.5 * float(vol.spacing.min()))
+    gap = _run_out_distance(vol, entry, -direction, far)
     return _Measurement(True, None, fitted, entry, tip, direction, n_inliers, res.n_trials,
                         roi_voxels, a_entry, a_tip, gap)
 
@@ -1540,12 +1544,14 @@ class VolumeTracker(Tracker):
     def _boundary_distance(self, vol: _Volume, point: np.ndarray) -> float:
         """Distance from a point to the sector's boundary, along the nearest of a fan of rays
         (the scan-converted sector is the volume whose boundary Chatelain's entry lies on)."""
-        step = 0.5 * float(vol.spacing.min())
-        s = np.arange(0, int(self.params.insertion.distance_threshold_mm / step) + 2) * step
+        step = 0.25 * float(vol.spacing.min())
+        reach = self.params.insertion.distance_threshold_mm
+        s = np.arange(0, int(reach / step) + 2) * step
         pts = point + s[None, :, None] * _RAYS[:, None, :]  # (R, S, 3)
         inside = vol.sample(vol.sector.view(np.uint8), pts, order=0) > 0
-        first_out = np.where(inside.all(axis=1), len(s) - 1, np.argmin(inside, axis=1))
-        return float(s[first_out].min())
+        # where each ray leaves the sector for 1 mm (_run_out_distance: not at dark speckle)
+        first_out = _first_run_out(inside, max(int(round(_RUN_OUT_MM / step)), 1))
+        return float(s[np.minimum(first_out, len(s) - 1)].min())
 
     def _search_chatelain(self, frame: Frame, vol: _Volume, previous, dt: float):
         """Chatelain II-B: wait for a localised change, then fit the needle around it.

@@ -18,7 +18,7 @@ from needlenet.trackers._volume import (
     VolumeTracker,
     VolumeTrackerParams,
     _cylinder,
-    _distance_to_boundary,
+    _first_run_out,
     _needle_contrast,
     _needle_run,
     _run_out_distance,
@@ -323,11 +323,32 @@ def test_run_out_distance_steps_over_dark_speckle_to_the_sector_boundary():
     image[:, :, x > 20.0] = 0  # outside the sector beyond x = 20 mm
     vol = _Volume(Frame(image, grid), Likelihood(image.astype(np.float32)), learned=False)
     start, u = np.array([5.0, 7.0, 7.0]), np.array([1.0, 0.0, 0.0])
+    # the ray crosses speckle zeros before the plane: a first-zero test would stop there
+    s = np.arange(1, 60) * 0.25
+    assert (vol.sample(image, start + s[:, None] * u, order=0) == 0).any()
     d = _run_out_distance(vol, start, u, 30.0)
     assert abs(d - 15.0) <= 0.5  # the boundary lies between the voxel centres 20.0 and 20.5
-    assert _distance_to_boundary(vol, start, u, 30.0, 0.125) < 5.0  # stops at a speckle zero
     assert _run_out_distance(vol, start, u, 4.0) == 4.0  # capped at max_mm
     assert _run_out_distance(vol, start, -u, 30.0) <= 5.5  # the array's face counts as out
+    # Chatelain's insertion test: the fan of rays from a point 4 mm from the plane measures
+    # 4 mm (the +x ray; every other ray meets the plane or a face farther away)
+    trk = VolumeTracker("chatelain")
+    gap = trk._boundary_distance(vol, np.array([16.0, 7.0, 7.0]))
+    assert abs(gap - 4.0) <= 0.5
+
+
+def test_first_run_out_matches_a_loop():
+    rng = np.random.default_rng(3)
+    inside = rng.random((50, 40)) < 0.7
+    inside[5] = True  # never leaves
+    inside[6, 30:] = False  # leaves for good at 30
+    for n in (1, 2, 3, 5):
+        got = _first_run_out(inside, n)
+        for row, g in zip(inside, got, strict=True):
+            padded = np.r_[row, np.zeros(n, bool)]  # past the end counts as outside
+            want = next((i for i in range(len(row)) if not padded[i:i + n].any()), len(row))
+            assert g == want
+        assert got[5] == 40 and got[6] <= 30
 
 
 def test_cylinder_roi_matches_brute_force():
