@@ -372,6 +372,13 @@ def _add_train(sub) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=2,
                    help="data-generating processes (default 2: the trainer itself needs little)")
+    p.add_argument("--accelerator", default="cpu", choices=("cpu", "gpu", "auto"),
+                   help="where the network trains (default cpu, as the shipped models did; "
+                        "on a GPU machine the simulation is the bottleneck: raise --workers)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="change one setting of the recipe: a field of training.train."
+                        "TrainConfig or of its DataConfig, e.g. --param width=16 --param "
+                        "crop=48 --param cr_range=1.5,3.0; repeatable")
     p.add_argument("--export", help="also export the result to this .onnx file")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=_cmd_train)
@@ -384,14 +391,29 @@ def _cmd_train(args) -> int:
         raise CLIError(f"train: --steps must be positive, got {args.steps}")
     export = _check_output(args.export, ".onnx", args.overwrite, "--export")
     _require_training("train")
-    from training.train import config_for, train
+    from training.train import config_for, settings_for, train
 
-    changes = {"seed": args.seed, "num_workers": args.workers}
+    changes = {"seed": args.seed, "num_workers": args.workers,
+               "accelerator": args.accelerator}
     if args.steps is not None:
         changes["steps"] = args.steps
     if args.out:
         changes["out_dir"] = args.out
-    cfg = config_for(args.model, **changes)
+    try:
+        settings = settings_for(args.model, args.param)
+        own = sorted(set(settings) & {"seed", "num_workers", "accelerator", "steps", "out_dir"})
+        if own:
+            raise ValueError(f"set {', '.join(own)} with its own option (--seed, --workers, "
+                             "--accelerator, --steps, --out), not --param")
+        cfg = config_for(args.model, **changes, **settings)
+    except ValueError as exc:
+        raise CLIError(f"train: --param: {exc}") from None
+    if cfg.accelerator == "gpu":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise CLIError(f"train: --accelerator gpu, but torch {torch.__version__} sees no "
+                           "GPU")
     out = Path(cfg.out_dir)
     if (out / "model.ckpt").exists() and not args.overwrite:
         raise CLIError(f"train: {out / 'model.ckpt'} exists; pass --overwrite or --out DIR")
@@ -403,7 +425,9 @@ def _cmd_train(args) -> int:
 
         net, hp = load_checkpoint(metrics["checkpoint"])
         r = export_onnx(net, hp["modality"], hp["spacing_mm"], export, overwrite=args.overwrite,
-                        extra_metadata={"train_steps": cfg.steps, "train_seed": args.seed},
+                        extra_metadata={"train_steps": cfg.steps, "train_seed": args.seed,
+                                        **({"train_params": " ".join(args.param)}
+                                           if args.param else {})},
                         target_reference=hp.get("target_reference", "centerline"),
                         normalization=hp.get("normalization", "fixed"))
         print(f"wrote {export} ({r['bytes']} bytes, onnxruntime vs torch {r['max_abs_diff']:.1e})")

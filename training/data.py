@@ -64,6 +64,19 @@ class DataConfig:
     cr_log: bool = False
 
     def __post_init__(self):
+        if self.normalization not in NORMALIZATIONS:
+            raise ValueError(f"normalization must be one of {', '.join(NORMALIZATIONS)}, got "
+                             f"{self.normalization!r}")
+        if not self.spacing_mm > 0:
+            raise ValueError(f"spacing_mm must be positive, got {self.spacing_mm}")
+        if self.crop < 2 * INPUT_MULTIPLE:
+            raise ValueError(f"crop must be at least {2 * INPUT_MULTIPLE} pixels, got {self.crop}")
+        for name in ("batch_size", "frames_per_world", "crops_per_frame", "val_frames",
+                     "shuffle_buffer"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
+        if self.num_workers < 0:
+            raise ValueError(f"num_workers must be 0 or more, got {self.num_workers}")
         if not 0.0 <= self.zhao_fraction <= 1.0:
             raise ValueError(f"zhao_fraction must be in [0, 1], got {self.zhao_fraction}")
         lo, hi = (float(v) for v in self.cr_range)

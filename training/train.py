@@ -6,6 +6,7 @@ defaults of :data:`DEFAULTS` (see README).
 
 from __future__ import annotations
 
+import difflib
 import json
 import time
 import warnings
@@ -16,12 +17,17 @@ import numpy as np
 import torch
 
 from needlenet.features._resample import NORMALIZATIONS
+from needlenet.trackers._registry import convert_setting
 
 from .data import DataConfig, SynthDataModule, target_reference
 from .module import LikelihoodModule
 from .networks import build_network, count_parameters
 
-__all__ = ["TrainConfig", "DEFAULTS", "train"]
+__all__ = ["TrainConfig", "DEFAULTS", "ACCELERATORS", "config_for", "settings_for",
+           "train"]
+
+
+ACCELERATORS = ("cpu", "gpu", "auto")
 
 
 @dataclass(frozen=True)
@@ -39,8 +45,26 @@ class TrainConfig:
     out_dir: str = "runs/inplane"
     val_every: int = 250
     threads: int = 1  # the trainer's torch threads; the data worker has the other core
+    # Lightning's accelerator: "cpu" (the shipped recipes), "gpu" or "auto". On a GPU machine
+    # the simulation, not the network, is the bottleneck: give it the cores (num_workers).
+    accelerator: str = "cpu"
     verbose: bool = True
     data: DataConfig = field(default_factory=DataConfig)
+
+    def __post_init__(self):
+        if self.accelerator not in ACCELERATORS:
+            raise ValueError(f"accelerator must be one of {', '.join(ACCELERATORS)}, got "
+                             f"{self.accelerator!r}")
+        if self.steps < 1 or self.val_every < 1 or self.threads < 1:
+            raise ValueError("steps, val_every and threads must be at least 1, got "
+                             f"{self.steps}, {self.val_every}, {self.threads}")
+        if not self.lr > 0:
+            raise ValueError(f"lr must be positive, got {self.lr}")
+        if self.width is not None and self.width < 1:
+            raise ValueError(f"width must be at least 1, got {self.width}")
+        if self.local_window and (self.local_window < 3 or self.local_window % 2 == 0):
+            raise ValueError(f"local_window must be 0 or odd and at least 3, got "
+                             f"{self.local_window}")
 
 
 # The shipped models: spacing and crop per modality (commands in README).
@@ -60,11 +84,54 @@ DEFAULTS = {
 }
 
 
-def config_for(modality: str, **changes) -> TrainConfig:
+def _settable() -> tuple[set, set]:
+    """The names a recipe change may use: fields of TrainConfig, fields of its DataConfig."""
+    return (set(TrainConfig.__annotations__) - {"data", "modality"},
+            set(DataConfig.__annotations__) - {"modality"})
+
+
+def settings_for(modality: str, items) -> dict:
+    """``"NAME=VALUE"`` strings (``needlenet train --param``) as changes for
+    :func:`config_for`: each value read as the type of the recipe's default for that name
+    (numbers, true/false, tuples as comma-separated values, text). Unknown names and
+    unreadable values raise ValueError naming them."""
     if modality not in DEFAULTS:
         raise ValueError(f"unknown model {modality!r}; choose one of {', '.join(DEFAULTS)}")
-    data_changes = {k: changes.pop(k) for k in list(changes) if k in DataConfig.__annotations__}
     cfg = DEFAULTS[modality]
+    train_fields, data_fields = _settable()
+    out: dict = {}
+    for item in items:
+        name, sep, text = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise ValueError(f"parameter {item!r}: expected NAME=VALUE")
+        if name in out:
+            raise ValueError(f"parameter {name} given twice")
+        if name not in train_fields | data_fields:
+            config_for(modality, **{name: None})  # raises, naming the settings
+        default = getattr(cfg.data if name in data_fields else cfg, name)
+        value = convert_setting(name, text, default)
+        if isinstance(default, tuple) and len(value) != len(default):
+            raise ValueError(f"parameter {name}: expected {len(default)} comma-separated "
+                             f"values, got {text!r}")
+        out[name] = value
+    return out
+
+
+def config_for(modality: str, **changes) -> TrainConfig:
+    """The shipped recipe for ``modality`` with ``changes``: fields of :class:`TrainConfig`
+    or of its :class:`DataConfig` (e.g. ``steps=500, crop=48, local_window=11``)."""
+    if modality not in DEFAULTS:
+        raise ValueError(f"unknown model {modality!r}; choose one of {', '.join(DEFAULTS)}")
+    train_fields, data_fields = _settable()
+    unknown = sorted(set(changes) - train_fields - data_fields)
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], sorted(train_fields | data_fields), n=3)
+        hint = f"; did you mean {', '.join(close)}?" if close else ""
+        raise ValueError(f"unknown training setting {unknown[0]!r}{hint} (settings: "
+                         f"{', '.join(sorted(train_fields | data_fields))})")
+    cfg = DEFAULTS[modality]
+    data_changes = {k: changes.pop(k) for k in list(changes) if k in data_fields}
     if data_changes:
         cfg = replace(cfg, data=replace(cfg.data, **data_changes))
     return replace(cfg, **changes)
@@ -109,7 +176,7 @@ def train(config: TrainConfig) -> dict:
             print(f"step {trainer.global_step:5d}  train/loss {loss:.4f}  {m}  "
                   f"{time.time() - t0:.0f} s", flush=True)
 
-    trainer = L.Trainer(max_steps=config.steps, accelerator="cpu", devices=1,
+    trainer = L.Trainer(max_steps=config.steps, accelerator=config.accelerator, devices=1,
                         val_check_interval=config.val_every, check_val_every_n_epoch=None,
                         limit_val_batches=1.0, logger=False, callbacks=[ckpt, _Loss()],
                         enable_progress_bar=False, enable_model_summary=False,

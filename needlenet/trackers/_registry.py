@@ -7,7 +7,8 @@ import difflib
 import importlib
 import math
 
-__all__ = ["TRACKERS", "tracker_class", "make_tracker", "tracker_params", "FEATURE_KINDS"]
+__all__ = ["TRACKERS", "tracker_class", "make_tracker", "tracker_params", "convert_setting",
+           "parse_value", "FEATURE_KINDS"]
 
 TRACKERS = {
     "inplane": ("needlenet.trackers._inplane", "InplaneTracker"),
@@ -60,8 +61,9 @@ def parse_value(text: str):
     return text
 
 
-def _convert(name: str, text: str, default):
-    """``text`` as a value of the type of ``default`` (the field's default value)."""
+def convert_setting(name: str, text: str, default):
+    """``text`` as a value of the type of ``default`` (the field's default value): the one
+    reading of ``NAME=VALUE`` settings, for ``track --param`` and ``train --param``."""
     low = text.strip().lower()
     if default is None or low in ("none", "null"):
         return parse_value(text)
@@ -87,7 +89,7 @@ def _convert(name: str, text: str, default):
         items = [t for t in text.split(",") if t.strip()]
         if not items:
             raise ValueError(f"parameter {name}: expected comma-separated values, got {text!r}")
-        return tuple(_convert(name, t, default[0] if default else 0.0) for t in items)
+        return tuple(convert_setting(name, t, default[0] if default else 0.0) for t in items)
     if isinstance(default, str):
         return text
     raise ValueError(f"parameter {name} ({type(default).__name__}) cannot be set as text; "
@@ -131,9 +133,9 @@ def tracker_params(name: str, settings):
             if rest not in sub:
                 raise ValueError(f"unknown {type(default).__name__} parameter {rest!r} of "
                                  f"{head} (parameters: {', '.join(sorted(sub))})")
-            nested.setdefault(head, {})[rest] = _convert(key, text, getattr(default, rest))
+            nested.setdefault(head, {})[rest] = convert_setting(key, text, getattr(default, rest))
         else:
-            top[head] = _convert(key, text, default)
+            top[head] = convert_setting(key, text, default)
     for head, values in nested.items():
         top[head] = dataclasses.replace(top.get(head, getattr(base, head)), **values)
     return cls(**top)

@@ -372,3 +372,52 @@ def test_local_contrast_network_round_trip_and_export(tmp_path):
         assert torch.allclose(loaded(x), net(x))
     r = export_onnx(loaded, "volume", 0.5, tmp_path / "m.onnx", normalization="median")
     assert r["max_abs_diff"] <= 1e-4
+
+
+def test_recipe_settings_are_read_as_their_defaults_types():
+    from training.train import config_for, settings_for
+
+    got = settings_for("volume", ["width=16", "cr_range=1.5, 3.0", "cr_log=true",
+                                  "normalization=fixed", "lr=0.002", "local_window=11"])
+    assert got == {"width": 16, "cr_range": (1.5, 3.0), "cr_log": True,
+                   "normalization": "fixed", "lr": 0.002, "local_window": 11}
+    assert isinstance(got["width"], int) and isinstance(got["lr"], float)
+    cfg = config_for("volume", **got)
+    assert cfg.width == 16 and cfg.local_window == 11 and cfg.lr == 0.002
+    assert cfg.data.cr_range == (1.5, 3.0) and cfg.data.cr_log
+    assert cfg.data.crop == 40 and cfg.steps == 2000  # the rest is the shipped recipe
+    bad = [(["widht=16"], "did you mean width"), (["crop=4.5"], "expected an integer"),
+           (["cr_range=1.5"], "expected 2 comma-separated values"), (["crop"], "NAME=VALUE"),
+           (["width=8", "width=16"], "given twice"), (["cr_log=maybe"], "true or false")]
+    for items, msg in bad:
+        with pytest.raises(ValueError, match=msg):
+            settings_for("volume", items)
+    for changes, msg in (({"normalization": "foo"}, "normalization must be one of"),
+                         ({"accelerator": "tpu"}, "accelerator must be one of"),
+                         ({"local_window": 4}, "odd"), ({"crop": 2}, "crop must be"),
+                         ({"zhao_fraction": 2.0}, "zhao_fraction")):
+        with pytest.raises(ValueError, match=msg):
+            config_for("volume", **changes)
+
+
+def test_cli_train_param_reaches_the_recipe_and_the_model_metadata(tmp_path, capsys):
+    import onnx
+
+    from needlenet.cli import main
+
+    assert main(["train", "volume", "--param", "widht=16"]) == 2
+    assert "did you mean width" in capsys.readouterr().err
+    assert main(["train", "volume", "--param", "steps=5"]) == 2
+    assert "--steps" in capsys.readouterr().err
+    params = ["crop=48", "frames_per_world=2", "val_frames=2", "val_every=1",
+              "shuffle_buffer=4", "batch_size=2", "width=12"]
+    out = tmp_path / "m.onnx"
+    args = ["train", "inplane", "--steps", "2", "--workers", "0", "--out", str(tmp_path / "run"),
+            "--export", str(out)]
+    for p in params:
+        args += ["--param", p]
+    assert main(args) == 0
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert meta["train_params"] == " ".join(params)
+    net, hp = load_checkpoint(tmp_path / "run" / "model.ckpt")
+    assert net.stem[0].out_channels == 12  # width=12 built the network
