@@ -6,10 +6,10 @@ A strided stem, depthwise-separable blocks (a depthwise 3x3(x3) convolution then
 resolution (``OUTPUT_STRIDE``); the runtime maps it back to the frame's grid. Inputs must have
 sides divisible by ``INPUT_MULTIPLE`` (the runtime pads).
 
-Optionally (``refine_blocks``, ``oriented_taps``; not used by the shipped models, see README)
-a refinement stage at half resolution re-reads the first stage's features and maps, with
-one-sided sums along the 13 neighbour directions, and is trained with the first stage
-supervised too.
+Optionally (``refine_blocks``, ``oriented_taps``; not used by the shipped models, see
+docs/notes/volume-model.md) a refinement stage at half resolution re-reads the first stage's
+features and maps, with one-sided sums along the 13 neighbour directions, and is trained with
+the first stage supervised too.
 """
 
 from __future__ import annotations
@@ -110,8 +110,8 @@ class _LocalContrast(nn.Module):
     the mean, as is the padding at the borders).
 
     Why: a needle at Zhao's CR 2.0 is 1.4-1.5 times the tissue next to it where that tissue
-    is brighter than average (README, volume model), while inhomogeneous tissue varies over
-    millimetres by more than that; the ratio to a 5 mm local mean takes the slow variation
+    is brighter than average (docs/notes/volume-model.md), while inhomogeneous tissue varies
+    over millimetres by more than that; the ratio to a 5 mm local mean takes the slow variation
     out. Measured on the held-out CR 2.0 volumes, the voxel AUC of a 0.5 mm-smoothed image is
     0.68-0.99 raw and 0.97-0.998 over its 5 mm local mean. Separable box means (three 1D
     average pools), so the cost is linear in the window."""
