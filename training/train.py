@@ -60,8 +60,9 @@ class TrainConfig:
                              f"{self.steps}, {self.val_every}, {self.threads}")
         if not self.lr > 0:
             raise ValueError(f"lr must be positive, got {self.lr}")
-        if self.width is not None and self.width < 1:
-            raise ValueError(f"width must be at least 1, got {self.width}")
+        if self.width is not None and (not isinstance(self.width, int) or self.width < 1):
+            raise ValueError(f"width must be a whole number of channels >= 1, got "
+                             f"{self.width!r}")
         if self.local_window and (self.local_window < 3 or self.local_window % 2 == 0):
             raise ValueError(f"local_window must be 0 or odd and at least 3, got "
                              f"{self.local_window}")

@@ -395,7 +395,8 @@ def test_recipe_settings_are_read_as_their_defaults_types():
     for changes, msg in (({"normalization": "foo"}, "normalization must be one of"),
                          ({"accelerator": "tpu"}, "accelerator must be one of"),
                          ({"local_window": 4}, "odd"), ({"crop": 2}, "crop must be"),
-                         ({"zhao_fraction": 2.0}, "zhao_fraction")):
+                         ({"zhao_fraction": 2.0}, "zhao_fraction"),
+                         ({"width": "wide"}, "width must be")):
         with pytest.raises(ValueError, match=msg):
             config_for("volume", **changes)
 
