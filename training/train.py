@@ -85,10 +85,25 @@ DEFAULTS = {
 }
 
 
-def _settable() -> tuple[set, set]:
-    """The names a recipe change may use: fields of TrainConfig, fields of its DataConfig."""
-    return (set(TrainConfig.__annotations__) - {"data", "modality"},
-            set(DataConfig.__annotations__) - {"modality"})
+def _recipe(modality: str) -> TrainConfig:
+    if modality not in DEFAULTS:
+        raise ValueError(f"unknown model {modality!r}; choose one of {', '.join(DEFAULTS)}")
+    return DEFAULTS[modality]
+
+
+def _settable(names) -> tuple[set, set]:
+    """The names a recipe change may use (fields of TrainConfig, fields of its DataConfig);
+    raises ValueError on the first of ``names`` that is neither, with the closest names."""
+    train_fields = set(TrainConfig.__annotations__) - {"data", "modality"}
+    data_fields = set(DataConfig.__annotations__) - {"modality"}
+    every = sorted(train_fields | data_fields)
+    unknown = sorted(set(names) - train_fields - data_fields)
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], every, n=3)
+        hint = f"; did you mean {', '.join(close)}?" if close else ""
+        raise ValueError(f"unknown training setting {unknown[0]!r}{hint} (settings: "
+                         f"{', '.join(every)})")
+    return train_fields, data_fields
 
 
 def settings_for(modality: str, items) -> dict:
@@ -96,10 +111,7 @@ def settings_for(modality: str, items) -> dict:
     :func:`config_for`: each value read as the type of the recipe's default for that name
     (numbers, true/false, tuples as comma-separated values, text). Unknown names and
     unreadable values raise ValueError naming them."""
-    if modality not in DEFAULTS:
-        raise ValueError(f"unknown model {modality!r}; choose one of {', '.join(DEFAULTS)}")
-    cfg = DEFAULTS[modality]
-    train_fields, data_fields = _settable()
+    cfg = _recipe(modality)
     out: dict = {}
     for item in items:
         name, sep, text = item.partition("=")
@@ -108,8 +120,7 @@ def settings_for(modality: str, items) -> dict:
             raise ValueError(f"parameter {item!r}: expected NAME=VALUE")
         if name in out:
             raise ValueError(f"parameter {name} given twice")
-        if name not in train_fields | data_fields:
-            config_for(modality, **{name: None})  # raises, naming the settings
+        _, data_fields = _settable([name])
         default = getattr(cfg.data if name in data_fields else cfg, name)
         value = convert_setting(name, text, default)
         if isinstance(default, tuple) and len(value) != len(default):
@@ -122,16 +133,8 @@ def settings_for(modality: str, items) -> dict:
 def config_for(modality: str, **changes) -> TrainConfig:
     """The shipped recipe for ``modality`` with ``changes``: fields of :class:`TrainConfig`
     or of its :class:`DataConfig` (e.g. ``steps=500, crop=48, local_window=11``)."""
-    if modality not in DEFAULTS:
-        raise ValueError(f"unknown model {modality!r}; choose one of {', '.join(DEFAULTS)}")
-    train_fields, data_fields = _settable()
-    unknown = sorted(set(changes) - train_fields - data_fields)
-    if unknown:
-        close = difflib.get_close_matches(unknown[0], sorted(train_fields | data_fields), n=3)
-        hint = f"; did you mean {', '.join(close)}?" if close else ""
-        raise ValueError(f"unknown training setting {unknown[0]!r}{hint} (settings: "
-                         f"{', '.join(sorted(train_fields | data_fields))})")
-    cfg = DEFAULTS[modality]
+    cfg = _recipe(modality)
+    _, data_fields = _settable(changes)
     data_changes = {k: changes.pop(k) for k in list(changes) if k in data_fields}
     if data_changes:
         cfg = replace(cfg, data=replace(cfg.data, **data_changes))

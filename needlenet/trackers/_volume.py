@@ -92,6 +92,8 @@ _NO_LIMIT_MM = 1e9
 _MIN_INSERTION_CANDIDATES = 10
 # A ray has left the sector where it stays outside for this long (_run_out_distance).
 _RUN_OUT_MM = 1.0
+# The tissue that start_min_contrast compares the needle with: a ring this far from the axis.
+_CONTRAST_RING_MM = (2.0, 3.0)
 # Directions of the rays along which the distance to the sector's boundary is measured: the
 # 26 neighbours of a voxel.
 _RAYS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
@@ -799,20 +801,30 @@ def _first_run_out(inside: np.ndarray, n: int) -> np.ndarray:
     return np.where(run.any(axis=-1), np.argmax(run, axis=-1), S)
 
 
-def _run_out_distance(vol: _Volume, point, u, max_mm: float,
-                      run_mm: float = _RUN_OUT_MM) -> float:
-    """Distance from ``point`` along ``u`` to the sector's boundary: where the ray leaves the
-    sector for good, the first sample from which it stays outside for ``run_mm`` (outside the
-    array counts as outside); ``max_mm`` when it does not within that distance.
+def _ray_step(vol: _Volume) -> float:
+    """Sample spacing along the rays that look for the sector's boundary (mm)."""
+    return 0.25 * float(vol.spacing.min())
+
+
+def _sector_run_out(vol: _Volume, pts: np.ndarray) -> np.ndarray:
+    """Per ray of samples ``pts`` (..., S, 3) spaced :func:`_ray_step` apart: the index of the
+    sample where it leaves the sector for good, staying outside for ``_RUN_OUT_MM``
+    (:func:`_first_run_out`; ``S`` when it does not).
 
     Not the first zero voxel: scan-converted volumes are 0 outside the sector, but dark
     speckle inside it is 0 too (a tenth of a Cartesian volume's voxels in the servo's phantom,
     mostly alone or in small clusters; 0.08% in the synth sector volumes), and a first-zero
     test ends the sector at the first of them."""
-    step = 0.25 * float(vol.spacing.min())
-    s = np.arange(1, int((max_mm + run_mm) / step) + 1) * step
-    inside = vol.sample(vol.sector.view(np.uint8), point + s[:, None] * u, order=0) > 0
-    first = int(_first_run_out(inside, max(int(round(run_mm / step)), 1)))
+    inside = vol.sample(vol.sector.view(np.uint8), pts, order=0) > 0
+    return _first_run_out(inside, max(int(round(_RUN_OUT_MM / _ray_step(vol))), 1))
+
+
+def _run_out_distance(vol: _Volume, point, u, max_mm: float) -> float:
+    """Distance from ``point`` along ``u`` to the sector's boundary (:func:`_sector_run_out`;
+    outside the array counts as outside); ``max_mm`` when it is not within that distance."""
+    step = _ray_step(vol)
+    s = np.arange(1, int((max_mm + _RUN_OUT_MM) / step) + 1) * step
+    first = int(_sector_run_out(vol, point + s[:, None] * u))
     return float(min(s[first], max_mm)) if first < s.size else max_mm
 
 
@@ -1051,13 +1063,13 @@ def _section_mean(vol: _Volume, pts: np.ndarray, min_samples: int):
 def _needle_contrast(vol: _Volume, model, a0: float, a1: float,
                     p: VolumeTrackerParams) -> float:
     """The median along the axis from ``a0`` to ``a1`` of the image's mean over the needle's
-    cross-section (``image_tip_radius_mm``) over its mean on a ring 2-3 mm around it (the
-    image tip's tissue, ``_ring_section``); NaN-free: 0 where no position has both inside
+    cross-section (``image_tip_radius_mm``) over its mean on a ring 2-3 mm around it
+    (``_CONTRAST_RING_MM``, ``_ring_section``); NaN-free: 0 where no position has both inside
     the sector."""
     step = 0.5 * float(vol.spacing.min())
     a = np.arange(a0, a1 + step, step)
     core, v1 = _section_mean(vol, _cross_section(model, a, p.image_tip_radius_mm), 1)
-    ring, v2 = _section_mean(vol, _ring_section(model, a, (2.0, 3.0)), _RING_MIN_SAMPLES)
+    ring, v2 = _section_mean(vol, _ring_section(model, a, _CONTRAST_RING_MM), _RING_MIN_SAMPLES)
     ok = v1 & v2
     if not ok.any():
         return 0.0
@@ -1544,13 +1556,10 @@ class VolumeTracker(Tracker):
     def _boundary_distance(self, vol: _Volume, point: np.ndarray) -> float:
         """Distance from a point to the sector's boundary, along the nearest of a fan of rays
         (the scan-converted sector is the volume whose boundary Chatelain's entry lies on)."""
-        step = 0.25 * float(vol.spacing.min())
+        step = _ray_step(vol)
         reach = self.params.insertion.distance_threshold_mm
         s = np.arange(0, int(reach / step) + 2) * step
-        pts = point + s[None, :, None] * _RAYS[:, None, :]  # (R, S, 3)
-        inside = vol.sample(vol.sector.view(np.uint8), pts, order=0) > 0
-        # where each ray leaves the sector for 1 mm (_run_out_distance: not at dark speckle)
-        first_out = _first_run_out(inside, max(int(round(_RUN_OUT_MM / step)), 1))
+        first_out = _sector_run_out(vol, point + s[None, :, None] * _RAYS[:, None, :])
         return float(s[np.minimum(first_out, len(s) - 1)].min())
 
     def _search_chatelain(self, frame: Frame, vol: _Volume, previous, dt: float):
