@@ -164,11 +164,17 @@ def _add_track(sub) -> None:
                                    "over OpenIGTLink.")
     p.add_argument("file", help="sequence file (.npz), PLUS sequence (.mha/.mhd), NRRD (.nrrd), "
                                 "a folder of PNG frames or a video (.mp4, .avi, ...)")
-    p.add_argument("--tracker", required=True, choices=["inplane", "volume", "axial"])
-    p.add_argument("--method", required=True,
-                   help="inplane: df om om+f kf kf+f pf pf+f kfv kfv+f pfv pfv+f; "
-                        "volume: ransac roi-rk chatelain; axial: carriere")
-    p.add_argument("--features", default="classical", choices=["classical", "learned"])
+    p.add_argument("--tracker", choices=["inplane", "volume", "axial"],
+                   help="default: the file's modality (2D frames without one: inplane)")
+    p.add_argument("--method",
+                   help="inplane: line (default: the needle found anywhere in the frame), df om "
+                        "om+f kf kf+f pf pf+f kfv kfv+f pfv pfv+f (Mathiassen 2017); volume: "
+                        "roi-rk (default) ransac chatelain; axial: carriere")
+    p.add_argument("--features", choices=["classical", "learned"],
+                   help="default: learned (the shipped model)")
+    p.add_argument("--angle", type=float, metavar="DEG",
+                   help="inplane: the insertion angle to the skin when known (0-90); the "
+                        "search then keeps near it")
     p.add_argument("--model", help="an ONNX model instead of the shipped one")
     p.add_argument("--json", dest="json_out", help="write per-frame results and the summary")
     p.add_argument("--overlay", help="write an overlay animation (.gif, .mp4 or .avi)")
@@ -243,6 +249,29 @@ def _open_stream(args):
     return streamer
 
 
+def _check_method(args) -> None:
+    """Fill in the default method and features of ``args.tracker`` and check the method."""
+    from .trackers._registry import DEFAULT_FEATURES, DEFAULT_METHODS, tracker_methods
+
+    args.method = args.method or DEFAULT_METHODS[args.tracker]
+    args.features = args.features or DEFAULT_FEATURES
+    if args.method not in tracker_methods(args.tracker):
+        raise CLIError(f"track: tracker {args.tracker!r} has no method {args.method!r}; "
+                       f"choose one of {', '.join(tracker_methods(args.tracker))}")
+
+
+def _track_params(args):
+    """``--param`` settings as the tracker's parameter class (None without any)."""
+    from .trackers._registry import tracker_params
+
+    if not args.param:
+        return None
+    try:
+        return tracker_params(args.tracker, args.param, args.method)
+    except (ValueError, TypeError) as exc:
+        raise CLIError(f"track: --param: {exc}") from None
+
+
 def _cmd_track(args) -> int:
     import json
     import time
@@ -251,7 +280,7 @@ def _cmd_track(args) -> int:
 
     from .eval import evaluate, latency_summary
     from .trackers._base import frames_from_sequence
-    from .trackers._registry import make_tracker, tracker_class, tracker_params
+    from .trackers._registry import make_tracker
 
     out_json = _check_output(args.json_out, ".json", args.overwrite, "--json")
     overlay = None
@@ -264,26 +293,27 @@ def _cmd_track(args) -> int:
         _check_plus_output(args.out_plus, args.overwrite, "--out-plus")
     if args.igtl is not None and not 0 <= args.igtl <= 65535:
         raise CLIError(f"--igtl {args.igtl}: a port is 0 to 65535")
-    cls = tracker_class(args.tracker)
-    if args.method not in cls.methods:
-        raise CLIError(f"track: tracker {args.tracker!r} has no method {args.method!r}; "
-                       f"choose one of {', '.join(cls.methods)}")
-    params = None
-    if args.param:  # checked before the recording is read
-        try:
-            params = tracker_params(args.tracker, args.param)
-        except (ValueError, TypeError) as exc:
-            raise CLIError(f"track: --param: {exc}") from None
+    if args.angle is not None and args.tracker not in (None, "inplane"):
+        raise CLIError(f"track: --angle is for the inplane tracker, not {args.tracker!r}")
+    if args.angle is not None and not 0.0 <= args.angle <= 90.0:
+        raise CLIError(f"track: --angle {args.angle:g}: an insertion angle is 0 to 90 degrees")
+    if args.tracker is not None:
+        _check_method(args)
+        params = _track_params(args)  # checked before the recording is read
     seq = _load_for_track(args)
+    if args.tracker is None:
+        args.tracker = seq.modality
+        _check_method(args)
+        params = _track_params(args)
     if seq.modality != args.tracker:
         raise CLIError(f"track: {args.file} holds {seq.modality!r} frames "
                        f"({seq.ndim}D); the {args.tracker!r} tracker needs "
                        f"{'3D volumes' if args.tracker == 'volume' else args.tracker + ' images'}")
-    import inspect
-
-    kw = {"seed": args.seed} if "seed" in inspect.signature(cls).parameters else {}
+    kw = {"seed": args.seed}
     if params is not None:
         kw["params"] = params
+    if args.angle is not None:
+        kw["expected_angle_deg"] = args.angle
     try:
         tracker = make_tracker(args.tracker, args.method, args.features, args.model, **kw)
     except (ValueError, FileNotFoundError) as exc:

@@ -7,33 +7,56 @@ import difflib
 import importlib
 import math
 
-__all__ = ["TRACKERS", "tracker_class", "make_tracker", "tracker_params", "convert_setting",
-           "parse_value", "FEATURE_KINDS"]
+__all__ = ["TRACKERS", "METHOD_TRACKERS", "DEFAULT_METHODS", "DEFAULT_FEATURES",
+           "tracker_class", "tracker_methods", "make_tracker", "tracker_params",
+           "convert_setting", "parse_value", "FEATURE_KINDS"]
 
+# the papers' tracker of each modality (module, class, parameter class)
 TRACKERS = {
     "inplane": ("needlenet.trackers._inplane", "InplaneTracker"),
     "volume": ("needlenet.trackers._volume", "VolumeTracker"),
     "axial": ("needlenet.trackers._axial", "AxialTracker"),
 }
+# methods served by a tracker class of their own: (modality, method) -> (module, class)
+METHOD_TRACKERS = {
+    ("inplane", "line"): ("needlenet.trackers._inplane_line", "LineTracker"),
+}
+# what ``needlenet track FILE`` runs when no method or features are given: the whole-frame
+# in-plane search (no entry side or angle assumed), and learned features
+DEFAULT_METHODS = {"inplane": "line", "volume": "roi-rk", "axial": "carriere"}
+DEFAULT_FEATURES = "learned"
 FEATURE_KINDS = ("classical", "learned")
-# each tracker's parameter dataclass, in the tracker's module
-PARAMS = {"inplane": "InplaneParams", "volume": "VolumeTrackerParams", "axial": "AxialParams"}
+# each tracker class's parameter dataclass, in the tracker's module
+PARAMS = {"InplaneTracker": "InplaneParams", "VolumeTracker": "VolumeTrackerParams",
+          "AxialTracker": "AxialParams", "LineTracker": "LineTrackerParams"}
 
 
-def tracker_class(name: str):
+def tracker_methods(name: str) -> tuple[str, ...]:
+    """Every method of modality ``name``: the paper's tracker's and those with a class of
+    their own."""
     if name not in TRACKERS:
         raise ValueError(f"unknown tracker {name!r}; choose one of {', '.join(TRACKERS)}")
     module, cls = TRACKERS[name]
+    own = tuple(m for (n, m) in METHOD_TRACKERS if n == name)
+    return own + tuple(getattr(importlib.import_module(module), cls).methods)
+
+
+def tracker_class(name: str, method: str | None = None):
+    """The class that runs ``method`` of modality ``name`` (the paper's tracker when
+    ``method`` is None or one of its own)."""
+    if name not in TRACKERS:
+        raise ValueError(f"unknown tracker {name!r}; choose one of {', '.join(TRACKERS)}")
+    module, cls = METHOD_TRACKERS.get((name, method), TRACKERS[name])
     return getattr(importlib.import_module(module), cls)
 
 
 def make_tracker(name: str, method: str, features: str = "classical", model: str | None = None,
                  **params):
     """A tracker of modality ``name`` with ``method`` and classical or learned features."""
-    cls = tracker_class(name)
-    if method not in cls.methods:
+    if method not in tracker_methods(name):
         raise ValueError(f"tracker {name!r} has no method {method!r}; choose one of "
-                         f"{', '.join(cls.methods)}")
+                         f"{', '.join(tracker_methods(name))}")
+    cls = tracker_class(name, method)
     if features not in FEATURE_KINDS:
         raise ValueError(f"features must be one of {FEATURE_KINDS}, got {features!r}")
     if features == "learned" or model is not None:
@@ -96,17 +119,17 @@ def convert_setting(name: str, text: str, default):
                      f"set its fields instead ({name}.FIELD=VALUE)")
 
 
-def tracker_params(name: str, settings):
-    """The tracker's parameter dataclass (``InplaneParams``, ``VolumeTrackerParams``,
-    ``AxialParams``) with ``settings`` applied: ``"NAME=VALUE"`` strings (or a mapping of
+def tracker_params(name: str, settings, method: str | None = None):
+    """The parameter dataclass of the tracker that runs ``method`` of modality ``name``
+    (``InplaneParams``, ``LineTrackerParams``, ``VolumeTrackerParams``, ``AxialParams``)
+    with ``settings`` applied: ``"NAME=VALUE"`` strings (or a mapping of
     names to text), a nested field as ``NAME.FIELD=VALUE``. Each value is read as the type
     of the field's default (booleans as true/false, tuples as comma-separated values); the
     dataclass then checks the result. Unknown names and unreadable values raise ValueError
     naming them."""
-    if name not in PARAMS:
-        raise ValueError(f"unknown tracker {name!r}; choose one of {', '.join(PARAMS)}")
-    cls_name = PARAMS[name]
-    cls = getattr(importlib.import_module(TRACKERS[name][0]), cls_name)
+    tracker = tracker_class(name, method)
+    cls_name = PARAMS[tracker.__name__]
+    cls = getattr(importlib.import_module(tracker.__module__), cls_name)
     if isinstance(settings, dict):
         pairs = list(settings.items())
     else:

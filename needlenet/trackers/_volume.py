@@ -1161,8 +1161,8 @@ class VolumeTracker(Tracker):
         threshold into likelihood-weighted candidates, replaces the line filter of the roi-rk
         initialisation and the volume differences of the insertion detection.
     params : VolumeTrackerParams, optional
-    rng : numpy.random.Generator or int or None
-        RANSAC's random generator (or its seed).
+    rng, seed : numpy.random.Generator or int or None
+        RANSAC's random generator (``seed`` is an alias of ``rng``, as for every tracker).
 
     Each :meth:`update` returns a :class:`NeedleEstimate` with the tip (mm, x, y, z), the unit
     direction from the entry to the tip, the tip covariance (mm^2; the Kalman filter's for
@@ -1181,9 +1181,9 @@ class VolumeTracker(Tracker):
 
     def __init__(self, method: str, features: FeatureSource | None = None,
                  params: VolumeTrackerParams | None = None,
-                 rng: np.random.Generator | int | None = None):
+                 rng: np.random.Generator | int | None = None, seed: int | None = None):
         self.params = VolumeTrackerParams() if params is None else params
-        self._rng = np.random.default_rng(rng)
+        self._rng = np.random.default_rng(seed if rng is None else rng)
         self._frangi = FrangiFeatures(self.params.frangi)
         super().__init__(method, features)
 

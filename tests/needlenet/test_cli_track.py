@@ -108,7 +108,8 @@ def test_track_passes_params_to_the_tracker(tmp_path):
     rates = []
     for extra in ([], ["--param", "intensity_threshold=255"]):  # a grey level nothing reaches
         out = tmp_path / f"r{len(extra)}.json"
-        assert main(["track", str(f), "--tracker", "volume", "--method", "roi-rk", "--json",
+        assert main(["track", str(f), "--tracker", "volume", "--method", "roi-rk",
+                     "--features", "classical", "--json",
                      str(out), "--quiet", *extra]) == 0
         rates.append(json.loads(out.read_text())["summary"]["failure_rate"])
     assert rates[0] < 1.0 and rates[1] == 1.0
@@ -151,3 +152,35 @@ def test_track_volume_and_axial(tmp_path, scenario, tracker, method, kw, key):
                  str(out), "--quiet"]) == 0
     s = json.loads(out.read_text())["summary"]
     assert key in s and s["frames"] == kw["frames"]
+
+
+def test_track_without_options_runs_the_default_tracker(tmp_path, capsys):
+    f = synth.save_sequence(synth.generate("inplane", seed=15, frames=4, depth_mm=25.0,
+                                           start_length_mm=15.0), tmp_path / "i.npz")
+    assert main(["track", str(f), "--quiet"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (out["tracker"], out["method"], out["features"]) == ("inplane", "line", "learned")
+
+
+@pytest.mark.parametrize("args,msg", [(["--angle", "120"], "0 to 90 degrees"),
+                                      (["--tracker", "volume", "--angle", "30"],
+                                       "--angle is for the inplane tracker"),
+                                      (["--method", "ransac"], "has no method 'ransac'")])
+def test_track_angle_and_method_are_checked(tmp_path, capsys, args, msg):
+    f = synth.save_sequence(synth.generate("inplane", seed=15, frames=2, depth_mm=25.0),
+                            tmp_path / "i.npz")
+    assert main(["track", str(f), "--quiet", *args]) == 2
+    assert msg in capsys.readouterr().err
+
+
+def test_track_seed_makes_volume_runs_repeatable(tmp_path):
+    f = synth.save_sequence(synth.generate("volume", seed=14, background="homogeneous",
+                                           frames=3, output_size=56, cr=4.7),
+                            tmp_path / "v.npz")
+    tips = []
+    for k in range(2):
+        out = tmp_path / f"s{k}.json"
+        assert main(["track", str(f), "--tracker", "volume", "--method", "roi-rk", "--seed",
+                     "3", "--json", str(out), "--quiet"]) == 0
+        tips.append([fr["tip_mm"] for fr in json.loads(out.read_text())["frames"]])
+    assert tips[0] == tips[1]

@@ -1,0 +1,427 @@
+"""The default in-plane tracker: the needle found wherever it enters, its tip filtered along it.
+
+Each frame: the feature source's shaft map (a learned shaft probability, or for classical
+features a line-contrast map of the image) is searched for the needle's line over the whole
+frame, every direction and offset (:func:`~needlenet.backends._line_search.find_needle_line`),
+or, while a needle is tracked, within a window around its last line. The line is accepted as a
+needle only when its supported segment is at least ``min_length_mm`` long with mean evidence at
+or above the level that marks a needle (probability 0.5 for a learned map; for the classical
+map ``classical_level`` local standard deviations above the surrounding tissue). The tip is the
+segment's end away from the entry, refined by the tip map where the source has one, and a
+constant-velocity Kalman filter on the tip's (x, z) smooths it between frames.
+
+Which end is the tip. A needle goes in from the skin (the top of the image) or from beyond a
+side edge and goes deeper as it advances, so of a segment that descends by more than
+``orientation_min_angle_deg`` the deeper end is the tip. A near-horizontal segment's entry is
+the end nearer the edge of the imaged region (black capture margins and sector masks are not
+imaged region). Once a needle is tracked its orientation is kept.
+
+Status. ``tracking`` only on a frame that shows the needle: a frame whose search finds no
+needle segment reports ``lost`` (or ``searching`` before any detection) with no tip. The
+filter is kept for ``forget_after_frames`` such frames, so the tip is picked up again at the
+prediction when the needle reappears; after that the tracker searches the whole frame anew.
+
+Mathiassen 2017's methods (``om``, ``kf+f``, ...) stay in :mod:`._inplane`, with the paper's
+entry corner and 20-70 degree search; this tracker makes none of those assumptions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from ..backends._kalman import chi2_gate, predict, update
+from ..backends._line_search import (
+    LineSearchParams,
+    NeedleLine,
+    WorkingMap,
+    find_needle_line,
+    working_map,
+)
+from ..features._base import FeatureSource, Frame
+from ._base import NeedleEstimate, Status, Tracker
+
+__all__ = ["LineTrackerParams", "LineTracker"]
+
+
+@dataclass(frozen=True)
+class LineTrackerParams:
+    """Settings (units in the names).
+
+    ``min_length_mm``: the shortest needle segment taken for a needle (5 mm: long enough to fix
+    a direction, shorter than any needle a user would track). ``learned_level``: a learned
+    shaft probability at or above this marks the needle (0.5: the map's decision level).
+    ``classical_level``: the same for the classical line-contrast map, in speckle standard
+    deviations above the tissue beside the echo (2 SD). ``contrast_window_mm``: the side of
+    that map's tissue boxes. ``track_window_deg``/``track_window_mm``: while tracking,
+    the line is searched within these of the last line; ``switch_ratio``: a segment elsewhere
+    replaces it when its evidence sum is this many times larger. ``tip_window_mm``: the tip map's
+    maximum is looked for this far behind and ahead of the segment's end. ``tip_map_min``:
+    the tip map must reach this there to move the tip. ``accel_std_mm_s2``: the filter's
+    white-acceleration noise (a hand or robot changing the insertion speed within a fraction
+    of a second); ``measurement_std_mm``: the tip measurement's noise; ``initial_speed_std_mm_s``:
+    the speed's prior spread. ``gate_probability``: the chi-square gate of a tip measurement;
+    ``reinit_after_rejects``: gated-out measurements in a row after which the filter restarts
+    at the image's tip. ``forget_after_frames``: frames without a needle after which the track
+    is forgotten. ``needle_radius_mm``: maps that mark the wall facing the probe (learned
+    ``target_reference = "wall"`` and the classical echo) are moved by it to the centre line
+    (default 18 G). ``frame_rate_hz``: None takes the rate from the timestamps (20 Hz until two
+    frames have been seen). ``orientation_min_angle_deg``: see the module's doc."""
+
+    search: LineSearchParams = field(default_factory=LineSearchParams)
+    min_length_mm: float = 5.0
+    learned_level: float = 0.5
+    classical_level: float = 2.0
+    contrast_window_mm: float = 2.0
+    track_window_deg: float = 4.0
+    track_window_mm: float = 2.0
+    switch_ratio: float = 1.5
+    tip_window_mm: tuple[float, float] = (2.0, 1.0)
+    tip_map_min: float = 0.3
+    accel_std_mm_s2: float = 40.0
+    measurement_std_mm: float = 0.3
+    initial_speed_std_mm_s: float = 20.0
+    gate_probability: float = 0.997
+    reinit_after_rejects: int = 3
+    forget_after_frames: int = 5
+    needle_radius_mm: float = 0.635
+    frame_rate_hz: float | None = None
+    orientation_min_angle_deg: float = 5.0
+
+    def __post_init__(self) -> None:
+        for name in ("min_length_mm", "learned_level", "classical_level", "contrast_window_mm",
+                     "track_window_deg", "track_window_mm", "accel_std_mm_s2",
+                     "measurement_std_mm", "initial_speed_std_mm_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not 0.0 < self.gate_probability < 1.0:
+            raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
+        if self.reinit_after_rejects < 1 or self.forget_after_frames < 1:
+            raise ValueError("reinit_after_rejects and forget_after_frames must be >= 1")
+        if not self.needle_radius_mm >= 0:
+            raise ValueError(f"needle_radius_mm must be >= 0, got {self.needle_radius_mm}")
+        if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
+            raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
+
+
+def line_contrast(image: np.ndarray, window_px: int) -> np.ndarray:
+    """The classical line evidence: how far a pixel (smoothed over one pixel) stands above the
+    tissue beside it, in units of the image's speckle spread (1.4826 times the median absolute
+    deviation of its non-zero pixels: the speckle SD of a log-compressed image, whatever the
+    gain and dynamic range), clipped at 0; black margins give 0 and are no tissue.
+
+    The tissue is the darkest of three ``window_px`` boxes centred a box's width above, left
+    and right of the pixel: below a needle lie its reverberations and shadow, and along it
+    the needle itself, so one of the three is tissue at any needle angle (Mathiassen's shaft
+    contrast takes the band above the needle for the same reason)."""
+    im = np.asarray(image, np.float32)
+    k = max(int(window_px) | 1, 3)
+    inside = im[im > 0]
+    if inside.size < 2:
+        return np.zeros_like(im)
+    valid = cv2.blur((im > 0).astype(np.float32), (k, k))
+    # the mean of the imaged pixels of each box; a box mostly in a margin is no tissue
+    mean = np.where(valid > 0.5, cv2.blur(im, (k, k)) / np.maximum(valid, 1e-6), np.inf)
+    mean = np.pad(mean, k, mode="edge")
+    h, w = im.shape
+    above = mean[0:h, k:k + w]
+    left = mean[k:k + h, 0:w]
+    right = mean[k:k + h, 2 * k:2 * k + w]
+    tissue = np.minimum(np.minimum(above, left), right)
+    sd = 1.4826 * float(np.median(np.abs(inside - np.median(inside))))
+    z = (cv2.GaussianBlur(im, (3, 3), 0) - tissue) / max(sd, 1e-6)
+    return np.where((im > 0) & np.isfinite(z), np.maximum(z, 0.0), 0.0).astype(np.float32)
+
+
+class LineTracker(Tracker):
+    """Whole-frame needle line search with a Kalman filter on the tip (the default in-plane
+    tracker; see the module's doc).
+
+    Parameters
+    ----------
+    method : ``"line"``
+    features : FeatureSource, default :class:`IntensityFeatures`
+    expected_angle_deg : float or None
+        The insertion angle to the skin, when the user knows it: the search then takes lines
+        within ``angle_window_deg`` of it, entering from either side.
+    params : LineTrackerParams
+    rng, seed : accepted for the common tracker interface; nothing here is random.
+    """
+
+    modality = "inplane"
+    methods = ("line",)
+    angle_window_deg = 10.0
+
+    def __init__(self, method: str = "line", features: FeatureSource | None = None, *,
+                 expected_angle_deg: float | None = None,
+                 params: LineTrackerParams | None = None,
+                 rng: np.random.Generator | int | None = None, seed: int | None = None):
+        self.params = LineTrackerParams() if params is None else params
+        if expected_angle_deg is not None and not 0.0 <= float(expected_angle_deg) <= 90.0:
+            raise ValueError(f"expected_angle_deg must lie in [0, 90], got {expected_angle_deg}")
+        self.expected_angle_deg = None if expected_angle_deg is None else float(
+            expected_angle_deg)
+        self._last_t: float | None = None
+        self._dt: float | None = None
+        super().__init__(method, features)
+
+    # ------------------------------------------------------------------ state
+
+    def reset(self) -> None:
+        super().reset()
+        self._forget()
+
+    def _forget(self) -> None:
+        self._x: np.ndarray | None = None  # (x, z, vx, vz), mm and mm/s
+        self._P: np.ndarray | None = None
+        self._dir: np.ndarray | None = None  # unit, entry -> tip
+        self._line_point: np.ndarray | None = None
+        self._misses = 0
+        self._rejects = 0
+
+    @property
+    def dt_s(self) -> float:
+        return self._dt if self._dt is not None else 1.0 / 20.0
+
+    def _update_dt(self, t: float) -> float:
+        """Seconds since the last frame (the frame period before two frames are seen)."""
+        if self.params.frame_rate_hz is not None:
+            self._dt = 1.0 / self.params.frame_rate_hz
+            step = self._dt
+        elif self._last_t is not None and t > self._last_t:
+            step = float(t - self._last_t)
+            if self._dt is None:
+                self._dt = step
+        else:
+            step = self.dt_s
+        self._last_t = float(t)
+        return step
+
+    # ------------------------------------------------------------------ evidence
+
+    def _level(self) -> float:
+        return self.params.learned_level if self.features.kind == "learned" else \
+            self.params.classical_level
+
+    def _evidence(self, frame: Frame, shaft: np.ndarray) -> WorkingMap:
+        p = self.params
+        wm = working_map(shaft, frame.grid, p.search.work_spacing_mm)
+        if self.features.kind == "learned":
+            return wm
+        win = int(round(p.contrast_window_mm / wm.step))
+        return WorkingMap(line_contrast(wm.values, win), wm.x0, wm.z0, wm.step)
+
+    def _offset_mm(self) -> float:
+        """Echo (wall facing the probe) to centre line, along the normal into the tissue."""
+        if self.features.kind == "learned" and \
+                getattr(self.features, "target_reference", "centerline") != "wall":
+            return 0.0
+        return self.params.needle_radius_mm
+
+    # ------------------------------------------------------------------ one frame
+
+    def _step(self, frame: Frame) -> NeedleEstimate:
+        if frame.grid.ndim != 2:
+            raise ValueError(f"LineTracker needs 2-D images, got a {frame.grid.ndim}-D grid")
+        dt = self._update_dt(frame.t)
+        lik = self.features.likelihood(frame)
+        wm = self._evidence(frame, lik.shaft)
+        if self._x is not None:
+            self._x, self._P = predict(self._x, self._P, *self._motion(dt))
+        seg, new_line = self._search(wm)
+        if not self._is_needle(seg):
+            return self._missed(frame, seg)
+        if new_line and self._dir is not None:
+            self._forget()  # another line than the one tracked: start anew
+        seg = self._orient(seg, frame)
+        tip_mm, used_tip_map = self._tip(seg, lik.tip, frame)
+        extras = {"shaft_support": seg.support, "segment_length_mm": seg.length_mm,
+                  "tip_measurement_mm": tip_mm.copy(), "tip_from_tip_map": used_tip_map}
+        self._misses = 0
+        self._filter(tip_mm, extras)
+        return self._estimate(frame, seg, extras)
+
+    def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Constant velocity in (x, z) with white acceleration noise (F, Q)."""
+        F = np.eye(4)
+        F[0, 2] = F[1, 3] = dt
+        q = self.params.accel_std_mm_s2 ** 2
+        blk = q * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+        Q = np.zeros((4, 4))
+        Q[np.ix_([0, 2], [0, 2])] = blk
+        Q[np.ix_([1, 3], [1, 3])] = blk
+        return F, Q
+
+    def _search(self, wm: WorkingMap) -> tuple[NeedleLine, bool]:
+        """The needle segment of this frame, and whether it is another line than the one
+        tracked (the track then starts anew). While tracking, the window around the last line
+        is searched and so is the whole frame: a clearly stronger segment elsewhere
+        (``switch_ratio`` times the evidence) takes over, so that a track started on a
+        needle-like tissue line does not hold out against the needle."""
+        p = self.params
+        level = self._level()
+        full = find_needle_line(wm, level, p.search, self._expected_thetas())
+        if self._dir is None:
+            return full, True
+        th = np.arctan2(self._dir[1], self._dir[0]) % np.pi
+        half = np.deg2rad(p.track_window_deg)
+        thetas = th + np.linspace(-half, half, 2 * int(round(p.track_window_deg)) + 1)
+        near = find_needle_line(wm, level, p.search, thetas % np.pi,
+                                prior=(self._line_point, self._dir, p.track_window_mm))
+        if self._is_needle(near) and not (self._is_needle(full) and
+                                          full.score > p.switch_ratio * near.score):
+            return near, False
+        return full, not self._same_line(full)
+
+    def _expected_thetas(self) -> np.ndarray | None:
+        """Line directions within ``angle_window_deg`` of the expected insertion angle, from
+        either side; None (every direction) without one."""
+        if self.expected_angle_deg is None:
+            return None
+        a = np.arange(-self.angle_window_deg, self.angle_window_deg + 1e-9, 1.0)
+        ang = np.clip(self.expected_angle_deg + a, 0.0, 90.0)
+        return np.deg2rad(np.concatenate([ang, 180.0 - ang])) % np.pi
+
+    def _same_line(self, seg: NeedleLine) -> bool:
+        """Whether ``seg`` lies within the tracking window of the tracked line."""
+        if not seg or self._dir is None:
+            return False
+        p = self.params
+        cos = abs(float(seg.direction @ self._dir))
+        n = np.array([-self._dir[1], self._dir[0]])
+        mid = 0.5 * (seg.start_mm + seg.end_mm)
+        return cos >= np.cos(np.deg2rad(p.track_window_deg)) and \
+            abs(float((mid - self._line_point) @ n)) <= p.track_window_mm
+
+    def _is_needle(self, seg: NeedleLine) -> bool:
+        return bool(seg) and seg.length_mm >= self.params.min_length_mm and \
+            seg.support >= self._level()
+
+    def _missed(self, frame: Frame, seg: NeedleLine) -> NeedleEstimate:
+        had = self._x is not None
+        self._misses += 1
+        if self._misses >= self.params.forget_after_frames:
+            self._forget()
+        if seg:
+            reason = (f"no needle: the best line's segment is {seg.length_mm:.1f} mm long with "
+                      f"mean evidence {seg.support:.2f} (needs {self.params.min_length_mm:g} mm "
+                      f"at {self._level():g})")
+        else:
+            reason = f"no needle: {seg.reason}"
+        status = Status.LOST if had or self.status == Status.TRACKING else Status.SEARCHING
+        return NeedleEstimate(t=frame.t, status=status, extras={"reason": reason})
+
+    # ------------------------------------------------------------------ geometry
+
+    def _orient(self, seg: NeedleLine, frame: Frame) -> NeedleLine:
+        """The segment from its entry end to its tip end (see the module's doc)."""
+        if self._dir is not None:
+            return seg if float(seg.direction @ self._dir) >= 0 else seg.reversed()
+        d = seg.direction
+        if abs(d[1]) >= np.sin(np.deg2rad(self.params.orientation_min_angle_deg)):
+            return seg if d[1] > 0 else seg.reversed()  # the tip is the deeper end
+        valid = _imaged_region(frame)
+        a = _distance_to_edge(valid, frame, seg.start_mm, -d)
+        b = _distance_to_edge(valid, frame, seg.end_mm, d)
+        return seg if a <= b else seg.reversed()
+
+    def _tip(self, seg: NeedleLine, tip_map, frame: Frame) -> tuple[np.ndarray, bool]:
+        """The tip (x, z) on the centre line: the segment's far end, moved to the tip map's
+        maximum within ``tip_window_mm`` of it when the map is confident there."""
+        p = self.params
+        normal = np.array([-seg.direction[1], seg.direction[0]])
+        if normal[1] < 0:
+            normal = -normal  # into the tissue (away from the probe)
+        end = seg.end_mm
+        used = False
+        if tip_map is not None:
+            back, ahead = p.tip_window_mm
+            step = p.search.work_spacing_mm / 2
+            s = np.arange(-back, ahead + 1e-9, step)
+            pts = end[None] + s[:, None] * seg.direction[None]
+            vals = _sample_frame(np.asarray(tip_map, np.float32), frame, pts)
+            k = int(np.argmax(vals))
+            if vals[k] >= p.tip_map_min:
+                end = pts[k]
+                used = True
+        return end + self._offset_mm() * normal, used
+
+    def _filter(self, z: np.ndarray, extras: dict) -> None:
+        p = self.params
+        H = np.hstack([np.eye(2), np.zeros((2, 2))])
+        R = np.eye(2) * p.measurement_std_mm ** 2
+        if self._x is None:
+            self._start(z)
+            return
+        y = z - H @ self._x
+        S = H @ self._P @ H.T + R
+        d = float(np.sqrt(y @ np.linalg.solve(S, y)))
+        if d > chi2_gate(2, p.gate_probability):
+            self._rejects += 1
+            extras["measurement_accepted"] = False
+            if self._rejects >= p.reinit_after_rejects:
+                self._start(z)
+                extras["restarted"] = True
+            return
+        self._rejects = 0
+        res = update(self._x, self._P, z, R, H)
+        self._x, self._P = res.x, res.P
+        extras["measurement_accepted"] = True
+
+    def _start(self, z: np.ndarray) -> None:
+        p = self.params
+        self._x = np.array([z[0], z[1], 0.0, 0.0])
+        self._P = np.diag([p.measurement_std_mm ** 2] * 2 + [p.initial_speed_std_mm_s ** 2] * 2)
+        self._rejects = 0
+
+    def _estimate(self, frame: Frame, seg: NeedleLine, extras: dict) -> NeedleEstimate:
+        self._dir = seg.direction.copy()
+        self._line_point = 0.5 * (seg.start_mm + seg.end_mm)
+        normal = np.array([-seg.direction[1], seg.direction[0]])
+        if normal[1] < 0:
+            normal = -normal
+        entry = seg.start_mm + self._offset_mm() * normal
+        tip = self._x[:2].copy()
+        return NeedleEstimate(
+            t=frame.t, status=Status.TRACKING, tip_mm=tip, direction=seg.direction.copy(),
+            covariance=self._P[:2, :2].copy(),
+            extras={"axis_point_mm": entry, "entry_mm": entry,
+                    "theta_deg": float(np.degrees(np.arctan2(seg.direction[1],
+                                                             abs(seg.direction[0])))),
+                    "tip_velocity_mm_s": self._x[2:].copy(), **extras})
+
+
+def _sample_frame(values: np.ndarray, frame: Frame, pts: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a frame-grid map at points (N, 2) in mm; 0 outside."""
+    idx = frame.grid.points_to_index(pts)  # (N, 2) as (row, col)
+    out = cv2.remap(values, idx[:, 1].astype(np.float32).reshape(1, -1),
+                    idx[:, 0].astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    return out.ravel()
+
+
+def _imaged_region(frame: Frame) -> np.ndarray:
+    """Where the frame holds an image: not black capture margin or outside a sector. A pixel
+    is imaged when more than a fifth of the pixels within 1 mm are non-zero (dark speckle has
+    isolated zeros; a margin is zero throughout)."""
+    im = np.asarray(frame.image)
+    dz, dx = frame.grid.spacing_mm
+    k = (max(int(round(1.0 / dx)) | 1, 3), max(int(round(1.0 / dz)) | 1, 3))
+    return cv2.blur((im > 0).astype(np.float32), k) > 0.2
+
+
+def _distance_to_edge(valid: np.ndarray, frame: Frame, start: np.ndarray,
+                      direction: np.ndarray, step_mm: float = 0.2,
+                      max_mm: float = 200.0) -> float:
+    """How far (mm) from ``start`` along ``direction`` the imaged region ends."""
+    s = np.arange(0.0, max_mm, step_mm)
+    idx = np.rint(frame.grid.points_to_index(start[None] + s[:, None] * direction[None]))
+    idx = idx.astype(int)
+    h, w = valid.shape
+    inside = (idx[:, 0] >= 0) & (idx[:, 0] < h) & (idx[:, 1] >= 0) & (idx[:, 1] < w)
+    ok = np.zeros(len(s), bool)
+    ok[inside] = valid[idx[inside, 0], idx[inside, 1]]
+    out = np.flatnonzero(~ok)
+    return float(s[out[0]]) if out.size else float(max_mm)

@@ -1,0 +1,104 @@
+"""The whole-frame line search (needlenet/backends/_line_search.py): the weighted Hough transform
+against scikit-image's, the total-least-squares refinement, and the supported segment."""
+
+import numpy as np
+import pytest
+from skimage.transform import hough_line, hough_line_peaks
+
+from needlenet.backends._line_search import (
+    LineSearchParams,
+    WorkingMap,
+    find_needle_line,
+    hough_peaks,
+    line_segment,
+    refine_line,
+)
+
+
+def _draw_segment(shape, a, b, step, value=1.0, width_px=1):
+    """A map with the segment a-b (mm, (x, z)) drawn at ``value`` on a grid of ``step`` mm."""
+    m = np.zeros(shape, np.float32)
+    n = int(np.ceil(np.linalg.norm(np.subtract(b, a)) / step * 4)) + 1
+    pts = np.linspace(a, b, n) / step
+    for o in range(-(width_px // 2), width_px // 2 + 1):
+        r = np.clip(np.rint(pts[:, 1]).astype(int) + o, 0, shape[0] - 1)
+        c = np.clip(np.rint(pts[:, 0]).astype(int), 0, shape[1] - 1)
+        m[r, c] = value
+    return m
+
+
+def test_hough_peak_agrees_with_scikit_image():
+    rng = np.random.default_rng(0)
+    mask = np.zeros((120, 160), bool)
+    mask[rng.integers(0, 120, 150), rng.integers(0, 160, 150)] = True  # clutter
+    line = _draw_segment(mask.shape, (10, 100), (140, 20), 1.0) > 0  # the strong line
+    mask |= line
+    thetas = np.deg2rad(np.arange(0.0, 180.0, 1.0))
+    rows, cols = np.nonzero(mask)
+    pts = np.stack([cols, rows], -1).astype(float)
+    th, rho, votes = hough_peaks(pts, np.ones(len(pts)), thetas, 1.0, 1)[0]
+    # scikit-image: x cos(phi) + y sin(phi) = r with the normal angle phi in (-pi/2, pi/2]
+    acc, angles, dists = hough_line(mask, theta=np.deg2rad(np.arange(-90.0, 90.0, 1.0)))
+    sk_votes, phi, r = hough_line_peaks(acc, angles, dists, num_peaks=1)
+    # our normal (-sin th, cos th) is skimage's (cos phi, sin phi) up to sign
+    n_ours = np.array([-np.sin(th), np.cos(th)])
+    n_sk = np.array([np.cos(phi[0]), np.sin(phi[0])])
+    sign = np.sign(n_ours @ n_sk)
+    assert abs(n_ours @ n_sk) == pytest.approx(1.0, abs=2e-4)
+    assert sign * rho == pytest.approx(r[0], abs=1.5)
+    # the line drawn: direction (130, -80) / |.|
+    d = np.array([130.0, -80.0]) / np.hypot(130, 80)
+    assert abs(np.array([np.cos(th), np.sin(th)]) @ d) > np.cos(np.deg2rad(1.0))
+    # ours sums three 1-pixel rho bins: the whole rasterised line (scikit-image's single bin
+    # holds part of it) and the little clutter within the band
+    assert votes >= sk_votes[0]
+    assert votes == pytest.approx(line.sum(), rel=0.05)
+
+
+def test_refine_line_recovers_a_noisy_line_by_total_least_squares():
+    rng = np.random.default_rng(1)
+    theta = np.deg2rad(23.0)
+    d = np.array([np.cos(theta), np.sin(theta)])
+    n = np.array([-d[1], d[0]])
+    t = rng.uniform(-20, 20, 400)
+    pts = np.array([5.0, 12.0]) + t[:, None] * d + rng.normal(0, 0.1, 400)[:, None] * n
+    outliers = rng.uniform(-30, 30, (100, 2))
+    allp = np.vstack([pts, outliers])
+    c, dd = refine_line(allp, np.ones(len(allp)), theta + np.deg2rad(2.0),
+                        float(np.array([5.0, 12.0]) @ n) + 0.5, (1.5, 0.5))
+    assert abs(dd @ d) > np.cos(np.deg2rad(0.2))
+    assert abs((c - np.array([5.0, 12.0])) @ n) < 0.05
+
+
+def test_segment_ends_where_the_evidence_ends():
+    step = 0.2
+    m = _draw_segment((200, 200), (5.0, 6.0), (30.0, 21.0), step, value=0.9, width_px=3)
+    m[np.rint(15.0 / step).astype(int), :] = 0.0  # a gap of one pixel row: bridged
+    wm = WorkingMap(m, 0.0, 0.0, step)
+    d = np.array([25.0, 15.0]) / np.hypot(25, 15)
+    seg = line_segment(wm, np.array([5.0, 6.0]), d, 0.5, LineSearchParams())
+    ends = sorted([seg.start_mm, seg.end_mm], key=lambda p: p[0])
+    assert np.linalg.norm(ends[0] - [5.0, 6.0]) < 2 * step
+    assert np.linalg.norm(ends[1] - [30.0, 21.0]) < 2 * step
+    assert seg.support == pytest.approx(0.9, abs=0.1)
+
+
+@pytest.mark.parametrize("a,b", [((2.0, 0.0), (30.0, 25.0)), ((38.0, 0.0), (10.0, 4.0)),
+                                 ((0.0, 10.0), (36.0, 12.5)), ((20.0, 0.0), (21.0, 35.0))])
+def test_finds_a_needle_at_any_direction_among_clutter(a, b):
+    step = 0.2
+    rng = np.random.default_rng(2)
+    m = rng.uniform(0.0, 0.45, (200, 200)).astype(np.float32)  # below the needle level
+    m += _draw_segment(m.shape, a, b, step, value=0.5, width_px=3)
+    seg = find_needle_line(WorkingMap(m, 0.0, 0.0, step), 0.5, LineSearchParams())
+    assert seg
+    ends = {tuple(np.round(seg.start_mm, 1)), tuple(np.round(seg.end_mm, 1))}
+    for p in (a, b):
+        assert min(np.linalg.norm(np.subtract(p, e)) for e in ends) < 1.0
+
+
+def test_nothing_found_on_a_map_below_the_level():
+    rng = np.random.default_rng(3)
+    m = rng.uniform(0.0, 0.2, (100, 100)).astype(np.float32)
+    seg = find_needle_line(WorkingMap(m, 0.0, 0.0, 0.2), 0.5, LineSearchParams())
+    assert not seg and "fewer than two pixels" in seg.reason
