@@ -17,12 +17,13 @@ import synth
 from ..trackers._registry import make_tracker
 from ._trackers import SEED0, _feature_kinds, _tier
 
-INPLANE_ALL = ("df", "om", "om+f", "kf", "kf+f", "pf", "pf+f", "kfv", "kfv+f", "pfv", "pfv+f")
+INPLANE_ALL = ("line", "df", "om", "om+f", "kf", "kf+f", "pf", "pf+f", "kfv", "kfv+f", "pfv",
+               "pfv+f")
 
 
 def _cases(tier: str) -> list[tuple]:
     """(tracker, methods, scenario, generate kwargs)."""
-    inplane_methods = INPLANE_ALL if tier == "full" else ("om", "kf+f", "pf+f")
+    inplane_methods = INPLANE_ALL if tier == "full" else ("line", "om", "kf+f", "pf+f")
     return [
         ("inplane", inplane_methods, "inplane",
          {"frames": 60 if tier == "full" else 30, "angle_deg": 35.0, "speed_mm_s": 10.0,
@@ -44,7 +45,7 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None) -> 
         shape = list(seq.images.shape[1:])
         for kind in _feature_kinds(tracker, log):
             for m in methods:
-                extra = {"expected_angle_deg": 35.0} if tracker == "inplane" else {}
+                extra = {"expected_angle_deg": 35.0} if tracker == "inplane" and m != "line" else {}
                 rng_kw = {"rng": 0} if tracker == "volume" else {"seed": 0}
                 tr = make_tracker(tracker, m, kind, **rng_kw, **extra)
                 est = tr.run(seq)

@@ -81,6 +81,7 @@ from ._base import NeedleEstimate, Status, Tracker
 
 __all__ = ["InplaneParams", "InplaneTracker"]
 
+ENTRY_SIDES = ("auto", "right", "left")
 METHODS = ("df", "om", "om+f", "kf", "kf+f", "pf", "pf+f", "kfv", "kfv+f", "pfv", "pfv+f")
 
 
@@ -102,6 +103,10 @@ class InplaneParams:
     the paper starts its method by hand once 10 mm of needle is visible and does not say
     how the velocity starts. ``needle_radius_mm``: the needle's (default Mathiassen's 14 G);
     a learned source that marks the wall facing the probe is moved by it to the centre line.
+    ``entry_side``: the paper's needle enters at the top right; ``"left"`` mirrors every frame
+    (and the estimates back) for a needle from the left, and ``"auto"`` mirrors when the
+    whole-frame line search of :class:`~._inplane_line.LineTracker` sees the needle's tip left
+    of its entry, deciding again at each detection.
     """
 
     axis: MathiassenParams = field(default_factory=MathiassenParams)
@@ -117,8 +122,12 @@ class InplaneParams:
     two_point_start: bool = True
     max_start_speed_mm_s: float = 30.0
     needle_radius_mm: float = 1.054  # 14 G (2.108 mm outer diameter)
+    entry_side: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.entry_side not in ENTRY_SIDES:
+            raise ValueError(f"entry_side must be one of {', '.join(ENTRY_SIDES)}, got "
+                             f"{self.entry_side!r}")
         if not self.needle_radius_mm >= 0:
             raise ValueError(f"needle_radius_mm must be >= 0, got {self.needle_radius_mm}")
         if self.keep_contrast > self.detect_contrast:
@@ -127,6 +136,26 @@ class InplaneParams:
             raise ValueError("lost_after_frames must be >= 1")
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
             raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
+
+
+def _mirror_estimate(est: NeedleEstimate, grid) -> NeedleEstimate:
+    """An estimate made on left-right mirrored frames, in the frames' own coordinates: x ->
+    x_first + x_last - x for points, the x component of directions negated."""
+    x_sum = 2.0 * float(grid.origin_mm[1]) + (grid.shape[1] - 1) * float(grid.spacing_mm[1])
+    flip = np.array([-1.0, 1.0])
+
+    def point(p):
+        return None if p is None else np.array([x_sum - p[0], p[1]], float)
+
+    extras = dict(est.extras)
+    for key in ("axis_point_mm", "entry_mm"):
+        if isinstance(extras.get(key), np.ndarray) and extras[key].shape == (2,):
+            extras[key] = point(extras[key])
+    cov = None if est.covariance is None else est.covariance * np.outer(flip, flip)
+    return NeedleEstimate(t=est.t, status=est.status, tip_mm=point(est.tip_mm),
+                          direction=None if est.direction is None else est.direction * flip,
+                          covariance=cov, latency_ms=est.latency_ms,
+                          extras={**extras, "mirrored": True})
 
 
 def _mm_to_px(mm):
@@ -181,6 +210,8 @@ class InplaneTracker(Tracker):
         self._history: deque = deque(maxlen=self.params.axis.delta_frames)
         self._last_t: float | None = None
         self._dt: float | None = None
+        self._mirrored = self.params.entry_side == "left"
+        self._side_finder = None
 
     # ------------------------------------------------------------------ state
 
@@ -214,20 +245,58 @@ class InplaneTracker(Tracker):
             raise ValueError(f"InplaneTracker needs 2-D images, got a {frame.grid.ndim}-D grid")
         self._update_dt(frame.t)
         lik = self.features.likelihood(frame)
-        image = np.asarray(lik.shaft, dtype=np.float32)
+        shaft = np.asarray(lik.shaft, dtype=np.float32)
         previous = self._history[0] if self._history else None  # I_{k-delta}, eq. (8)
-        if previous is not None and previous.shape != image.shape:
+        if previous is not None and previous.shape != shaft.shape:
             self._history.clear()
             previous = None
         try:
             if self.status == Status.TRACKING:
-                est = self._track(frame, image, previous, lik.tip)
+                est = self._track(frame, *self._oriented(shaft, previous, lik.tip))
             else:
-                est = self._detect(frame, image, previous, lik.tip)
+                est = self._detect_either_side(frame, shaft, previous, lik.tip)
         finally:
             if lik.tip is None:
-                self._history.append(image.copy())
-        return est
+                self._history.append(shaft.copy())
+        return _mirror_estimate(est, frame.grid) if self._mirrored else est
+
+    def _oriented(self, *maps):
+        """The maps as the paper's geometry wants them: mirrored for a needle from the left."""
+        if not self._mirrored:
+            return maps
+        return tuple(None if m is None else np.asarray(m)[:, ::-1] for m in maps)
+
+    def _detect_either_side(self, frame, shaft, previous, tip_map) -> NeedleEstimate:
+        """Detection on the side ``entry_side`` names; with ``"auto"`` on both (the frames as
+        they are and mirrored), keeping the side whose needle has the larger shaft contrast
+        (the paper's own detection measure)."""
+        side = self.params.entry_side
+        if side != "auto" or self.method == "df":
+            if side == "auto":  # DF's Hough search: the side of the whole-frame segment
+                self._mirrored = self._left_by_line_search(frame, shaft, self._mirrored)
+            return self._detect(frame, *self._oriented(shaft, previous, tip_map))
+        found = []
+        for mirrored in (False, True):
+            self._mirrored = mirrored
+            cand = self._find(frame, *self._oriented(shaft, previous, tip_map))
+            found.append(cand)
+        # a side whose needle is too short to detect does not compete
+        scores = [c[4] if c[3] - float(c[0].rays_mm[0]) >= self.params.min_length_mm
+                  else -np.inf for c in found]
+        best = int(np.argmax(scores))
+        self._mirrored = bool(best)
+        return self._commit_detection(frame, *self._oriented(shaft, previous, tip_map),
+                                      found[best])
+
+    def _left_by_line_search(self, frame, shaft, default: bool) -> bool:
+        """Whether the whole-frame line search sees a needle whose tip lies left of its
+        entry (``default`` when it sees none)."""
+        if self._side_finder is None:
+            from ._inplane_line import LineTracker
+
+            self._side_finder = LineTracker(features=self.features)
+        seg = self._side_finder.segment(frame, shaft)
+        return default if not seg else bool(seg.direction[0] > 0)
 
     def _update_dt(self, t: float) -> None:
         if self.params.frame_rate_hz is not None:
@@ -275,10 +344,16 @@ class InplaneTracker(Tracker):
     # detection --------------------------------------------------------------------------
 
     def _detect(self, frame, image, previous, tip_map) -> NeedleEstimate:
-        p = self.params
-        grid = frame.grid
         if self.method == "df":
             return self._df(frame, image, previous, tip_map, detecting=True)
+        return self._commit_detection(frame, image, previous, tip_map,
+                                      self._find(frame, image, previous, tip_map))
+
+    def _find(self, frame, image, previous, tip_map):
+        """Algorithm 2's axis and the tip along it on one frame: (axis, feats, h, x_tip,
+        contrast)."""
+        p = self.params
+        grid = frame.grid
         axis = estimate_axis(image, grid, p.axis, **self._search_range())
         feats, h = self._measure(image, previous, tip_map, grid, axis)
         x_tip = float(self._tip_positions_mm(feats, tip_map)[int(np.argmax(h))])
@@ -294,6 +369,13 @@ class InplaneTracker(Tracker):
             contrast_f = feats_f.shaft_contrast(first, x_tip_f)
             if contrast_f >= contrast:
                 axis, feats, h, x_tip, contrast = fine, feats_f, h_f, x_tip_f, contrast_f
+        return axis, feats, h, x_tip, contrast
+
+    def _commit_detection(self, frame, image, previous, tip_map, found) -> NeedleEstimate:
+        """Start tracking on ``found`` (:meth:`_find`'s result) when it is a needle."""
+        p = self.params
+        axis, feats, h, x_tip, contrast = found
+        first = float(axis.rays_mm[0])
         extras = {"shaft_contrast": contrast, "theta_measured_deg": axis.theta_deg}
         if contrast < p.detect_contrast or x_tip - first < p.min_length_mm:
             return NeedleEstimate(t=frame.t, status=self.status,

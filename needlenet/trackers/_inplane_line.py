@@ -313,19 +313,23 @@ class LineTracker(Tracker):
         status = Status.LOST if had or self.status == Status.TRACKING else Status.SEARCHING
         return NeedleEstimate(t=frame.t, status=status, extras={"reason": reason})
 
+    def segment(self, frame: Frame, shaft: np.ndarray) -> NeedleLine:
+        """The needle segment a whole-frame search finds on ``shaft`` (this source's shaft
+        map of ``frame``), oriented entry to tip; false-valued when it sees no needle. The
+        tracker's state is neither used nor changed."""
+        seg = find_needle_line(self._evidence(frame, shaft), self._level(), self.params.search,
+                               self._expected_thetas())
+        if not self._is_needle(seg):
+            return NeedleLine(False, seg.reason or "the segment is too short or too faint")
+        return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg)
+
     # ------------------------------------------------------------------ geometry
 
     def _orient(self, seg: NeedleLine, frame: Frame) -> NeedleLine:
         """The segment from its entry end to its tip end (see the module's doc)."""
         if self._dir is not None:
             return seg if float(seg.direction @ self._dir) >= 0 else seg.reversed()
-        d = seg.direction
-        if abs(d[1]) >= np.sin(np.deg2rad(self.params.orientation_min_angle_deg)):
-            return seg if d[1] > 0 else seg.reversed()  # the tip is the deeper end
-        valid = _imaged_region(frame)
-        a = _distance_to_edge(valid, frame, seg.start_mm, -d)
-        b = _distance_to_edge(valid, frame, seg.end_mm, d)
-        return seg if a <= b else seg.reversed()
+        return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg)
 
     def _tip(self, seg: NeedleLine, tip_map, frame: Frame) -> tuple[np.ndarray, bool]:
         """The tip (x, z) on the centre line: the segment's far end, moved to the tip map's
@@ -391,6 +395,19 @@ class LineTracker(Tracker):
                     "theta_deg": float(np.degrees(np.arctan2(seg.direction[1],
                                                              abs(seg.direction[0])))),
                     "tip_velocity_mm_s": self._x[2:].copy(), **extras})
+
+
+def _entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float) -> NeedleLine:
+    """``seg`` from its entry end to its tip end: the deeper end is the tip of a segment that
+    descends by ``min_angle_deg`` or more; else the entry is the end nearer the edge of the
+    imaged region."""
+    d = seg.direction
+    if abs(d[1]) >= np.sin(np.deg2rad(min_angle_deg)):
+        return seg if d[1] > 0 else seg.reversed()
+    valid = _imaged_region(frame)
+    a = _distance_to_edge(valid, frame, seg.start_mm, -d)
+    b = _distance_to_edge(valid, frame, seg.end_mm, d)
+    return seg if a <= b else seg.reversed()
 
 
 def _sample_frame(values: np.ndarray, frame: Frame, pts: np.ndarray) -> np.ndarray:
