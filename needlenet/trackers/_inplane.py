@@ -103,6 +103,11 @@ class InplaneParams:
     the paper starts its method by hand once 10 mm of needle is visible and does not say
     how the velocity starts. ``needle_radius_mm``: the needle's (default Mathiassen's 14 G);
     a learned source that marks the wall facing the probe is moved by it to the centre line.
+    ``learned_level``: with a learned source the needle also counts as seen only where its
+    shaft probability along the axis averages at least this (the map's decision level; the
+    shaft contrast of a clean probability map is large even for a faint response). A frame
+    on which the needle is not seen reports ``lost`` without a tip while the filters predict
+    through it; after ``lost_after_frames`` such frames the track is forgotten.
     ``entry_side``: the paper's needle enters at the top right; ``"left"`` mirrors every frame
     (and the estimates back) for a needle from the left, and ``"auto"`` mirrors when the
     whole-frame line search of :class:`~._inplane_line.LineTracker` sees the needle's tip left
@@ -123,6 +128,7 @@ class InplaneParams:
     max_start_speed_mm_s: float = 30.0
     needle_radius_mm: float = 1.054  # 14 G (2.108 mm outer diameter)
     entry_side: str = "auto"
+    learned_level: float = 0.5
 
     def __post_init__(self) -> None:
         if self.entry_side not in ENTRY_SIDES:
@@ -228,7 +234,6 @@ class InplaneTracker(Tracker):
         self._tip_along_mm: float | None = None
         self._theta_ref: float | None = None
         self._misses = 0
-        self._df_last: NeedleEstimate | None = None
         self._first_fix: tuple[float, float] | None = None
 
     def tip_weights(self) -> TipWeights:
@@ -251,7 +256,7 @@ class InplaneTracker(Tracker):
             self._history.clear()
             previous = None
         try:
-            if self.status == Status.TRACKING:
+            if self._tip_along_mm is not None:  # a track, possibly through unseen frames
                 est = self._track(frame, *self._oriented(shaft, previous, lik.tip))
             else:
                 est = self._detect_either_side(frame, shaft, previous, lik.tip)
@@ -377,7 +382,8 @@ class InplaneTracker(Tracker):
         axis, feats, h, x_tip, contrast = found
         first = float(axis.rays_mm[0])
         extras = {"shaft_contrast": contrast, "theta_measured_deg": axis.theta_deg}
-        if contrast < p.detect_contrast or x_tip - first < p.min_length_mm:
+        if contrast < p.detect_contrast or x_tip - first < p.min_length_mm or \
+                not self._learned_shaft_seen(feats, first, x_tip):
             return NeedleEstimate(t=frame.t, status=self.status,
                                   extras={**extras, "reason": "no needle found"})
         self._start_track(axis, x_tip, frame)
@@ -436,19 +442,32 @@ class InplaneTracker(Tracker):
             axis = axis.rotated(theta_kf, upto_mm=self._tip_along_mm)
         feats, h = self._measure(image, previous, tip_map, grid, axis)
         first = float(axis.rays_mm[0])
-        contrast = feats.shaft_contrast(first, max(self._tip_along_mm, first + p.min_length_mm))
-        seen = contrast >= p.keep_contrast
+        upto = max(self._tip_along_mm, first + p.min_length_mm)
+        contrast = feats.shaft_contrast(first, upto)
+        seen = contrast >= p.keep_contrast and self._learned_shaft_seen(feats, first, upto)
         self._misses = 0 if seen else self._misses + 1
         if self._misses >= p.lost_after_frames:
             self._clear_track()
             return NeedleEstimate(t=frame.t, status=Status.LOST, extras={
-                "reason": f"shaft contrast below {p.keep_contrast} for "
-                          f"{p.lost_after_frames} frames", "shaft_contrast": contrast})
+                "reason": f"no needle seen for {p.lost_after_frames} frames",
+                "shaft_contrast": contrast})
         extras = {"theta_measured_deg": theta_measured}
         x_tip, var_px2 = self._tip_step(self._tip_positions_mm(feats, tip_map), h, seen, frame,
                                         extras)
         self._tip_along_mm = x_tip
+        if not seen:  # the filters predict through the frame; it reports no needle
+            return NeedleEstimate(t=frame.t, status=Status.LOST, extras={
+                "reason": "no needle seen on this frame", "shaft_contrast": contrast,
+                "coasting": True})
         return self._estimate(frame, axis, x_tip, var_px2, h, feats, contrast, tip_map, extras)
+
+    def _learned_shaft_seen(self, feats, x_from_mm: float, x_to_mm: float) -> bool:
+        """For a learned source, whether its shaft probability along the axis reaches
+        ``learned_level`` on average (always True for classical features)."""
+        if self.features.kind != "learned":
+            return True
+        sel = (feats.x_mm >= x_from_mm) & (feats.x_mm <= x_to_mm)
+        return bool(sel.any()) and float(feats.line[sel].mean()) >= self.params.learned_level
 
     def _tip_step(self, x_mm: np.ndarray, h: np.ndarray, seen: bool, frame: Frame,
                   extras: dict):
@@ -526,11 +545,8 @@ class InplaneTracker(Tracker):
                                       extras={"reason": reason, "shaft_contrast": contrast})
             if self._misses >= p.lost_after_frames:
                 self._clear_track()
-                return NeedleEstimate(t=frame.t, status=Status.LOST,
-                                      extras={"reason": reason, "shaft_contrast": contrast})
-            if self._tip_along_mm is None or self._df_last is None:
-                return NeedleEstimate(t=frame.t, status=Status.LOST, extras={"reason": reason})
-            return self._df_last_estimate(frame, reason, contrast)
+            return NeedleEstimate(t=frame.t, status=Status.LOST,
+                                  extras={"reason": reason, "shaft_contrast": contrast})
         if detecting:
             self._clear_track()
             self._theta_ref = res.theta_deg
@@ -544,15 +560,7 @@ class InplaneTracker(Tracker):
             extras={"axis_point_mm": np.asarray(res.entry_mm, float),
                     "theta_deg": res.theta_deg, "hough_votes": res.votes,
                     "shaft_contrast": contrast})
-        self._df_last = est
         return est
-
-    def _df_last_estimate(self, frame, reason, contrast) -> NeedleEstimate:
-        last = self._df_last
-        return NeedleEstimate(t=frame.t, status=Status.TRACKING, tip_mm=last.tip_mm,
-                              direction=last.direction, covariance=last.covariance,
-                              extras={**last.extras, "reason": reason, "coasting": True,
-                                      "shaft_contrast": contrast})
 
     # output -----------------------------------------------------------------------------
 

@@ -1,6 +1,8 @@
 """End-to-end tests of Mathiassen 2017's in-plane trackers (needlenet/trackers/_inplane.py) on
 seeded synth sequences."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -156,12 +158,29 @@ class _TipMapSource(FeatureSource):
 
 def test_a_tip_map_replaces_the_five_features(sequences):
     seq = sequences[45]
+    # the stand-in's shaft map is the image, not a probability: no probability level applies
     estimates = InplaneTracker("om", _TipMapSource(seq), expected_angle_deg=45.0,
-                               weights="/nonexistent.json").run(seq)
+                               weights="/nonexistent.json",
+                               params=InplaneParams(learned_level=0.0)).run(seq)
     along = [e.extras["tip_along_mm"] for e in estimates]
     truth = [(t - e.extras["axis_point_mm"]) @ e.direction for e, t in
              zip(estimates, seq.tip_mm, strict=True)]
     np.testing.assert_allclose(along, truth, atol=0.6)  # the map's peak, not the features'
+
+
+def test_frames_without_the_needle_are_lost_without_a_tip(sequences):
+    from needlenet.features import learned_features
+
+    seq = sequences[35]
+    images = seq.images.copy()
+    free = synth.generate("inplane", seed=21, angle_deg=35.0, elevation_offset_mm=12.0,
+                          **SCENE).images  # the same world, the needle out of the plane
+    images[8:13] = free[8:13]
+    gap = dataclasses.replace(seq, images=images)
+    for source in (None, learned_features("inplane")):
+        est = InplaneTracker("kf+f", source, expected_angle_deg=35.0, rng=0).run(gap)
+        assert all(e.status != Status.TRACKING and e.tip_mm is None for e in est[8:13])
+        assert est[-1].status == Status.TRACKING
 
 
 def test_construction_errors(tmp_path):
