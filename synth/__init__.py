@@ -20,7 +20,7 @@ from ._geometry import (
 from ._preview import preview_image, save_preview
 from ._probe import MatrixProbe, PlaneProbe, SectorProbe
 from ._render import Trajectory, contrast_ratio, render_sequence, tube_indices
-from ._scanner import ImagingParams, Scanner, log_compress
+from ._scanner import ImagingParams, Scanner, display_mask, log_compress, speckle_log_mean_db
 from ._scenarios import SCENARIOS, describe, generate, random_scattering_map, scenario_params
 from ._sequence import (
     MODALITIES,
@@ -36,6 +36,7 @@ from ._speckle import (
     envelope_snr,
     log_std_db,
     speckle_fwhm,
+    speckle_log_std_db,
 )
 from ._world import (
     GAUGE_OUTER_DIAMETER_MM,
@@ -52,7 +53,8 @@ __all__ = [
     "NeedlePath", "NeedleSpec", "PlaneProbe", "RAYLEIGH_LOG_STD_DB", "RAYLEIGH_SNR",
     "SCENARIOS", "Scanner", "ScatteringMap", "SectorProbe", "Sequence", "SequenceFileError",
     "Tissue", "Trajectory", "World", "apply_transform", "contrast_ratio", "describe",
-    "distance_to_polyline", "envelope_snr", "generate", "invert_rigid", "load_sequence",
+    "display_mask", "distance_to_polyline", "envelope_snr", "speckle_log_mean_db",
+    "speckle_log_std_db", "generate", "invert_rigid", "load_sequence",
     "log_compress", "log_std_db",
     "needle_radius_mm", "preview_image", "random_scattering_map", "render_sequence",
     "rigid_transform", "rotation_matrix", "save_preview", "save_sequence", "scenario_params",

@@ -93,7 +93,9 @@ def splat(idx: np.ndarray, amp: np.ndarray, phase: np.ndarray, shape: tuple[int,
 @numba.njit(cache=True, nogil=True, fastmath=True, parallel=True)
 def scattering_amplitude(p, smooth, smooth_origin, smooth_step, int_normals, int_offsets,
                          int_factors, int_bright, line_a, line_b, line_radius, line_gain,
-                         cyst_centers, cyst_radii, cyst_factor):  # pragma: no cover - compiled
+                         cyst_centers, cyst_radii, cyst_factor, tube_a, tube_b, tube_radius,
+                         tube_factor, tube_wall, cast_a, cast_b, cast_factor,
+                         cast_half_width):  # pragma: no cover - compiled
     """The scattering map at points ``p`` (N, 3); see :class:`synth._world.ScatteringMap`.
 
     ``smooth`` is the smooth amplitude factor sampled on a lattice (origin, step), read by
@@ -163,6 +165,41 @@ def scattering_amplitude(p, smooth, smooth_origin, smooth_step, int_normals, int
             if d < cyst_radii[k] + 2.0:
                 inside = 1.0 / (1.0 + np.exp((d - cyst_radii[k]) / 0.2))
                 a *= 1.0 - (1.0 - cyst_factor) * inside
+        for k in range(tube_radius.shape[0]):  # vessels: tubes with a sharp, echogenic wall
+            r = tube_radius[k]
+            abx = tube_b[k, 0] - tube_a[k, 0]
+            aby = tube_b[k, 1] - tube_a[k, 1]
+            abz = tube_b[k, 2] - tube_a[k, 2]
+            apx = x - tube_a[k, 0]
+            apy = y - tube_a[k, 1]
+            apz = z - tube_a[k, 2]
+            L2 = abx * abx + aby * aby + abz * abz
+            t = (apx * abx + apy * aby + apz * abz) / max(L2, 1e-12)
+            t = min(max(t, 0.0), 1.0)
+            dx = apx - t * abx
+            dy = apy - t * aby
+            dz = apz - t * abz
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if d < r + 2.0:
+                inside = 1.0 / (1.0 + np.exp((d - r) / 0.1))
+                a *= 1.0 - (1.0 - tube_factor[k]) * inside
+                a *= 1.0 + tube_wall[k] * np.exp(-0.5 * ((d - r) / 0.15) ** 2)
+        for k in range(cast_factor.shape[0]):
+            # an acoustic shadow: everything deeper (+z, the beam of a probe at the identity
+            # pose) than the occluding segment a-b, across its lateral extent and within
+            # cast_half_width of it in elevation, keeps cast_factor of its amplitude
+            x0 = min(cast_a[k, 0], cast_b[k, 0])
+            x1 = max(cast_a[k, 0], cast_b[k, 0])
+            if x < x0 - 1.5 or x > x1 + 1.5:
+                continue
+            f = 0.0 if x1 - x0 < 1e-9 else (x - cast_a[k, 0]) / (cast_b[k, 0] - cast_a[k, 0])
+            f = min(max(f, 0.0), 1.0)
+            zs = cast_a[k, 2] + f * (cast_b[k, 2] - cast_a[k, 2])
+            ys = cast_a[k, 1] + f * (cast_b[k, 1] - cast_a[k, 1])
+            lat = 1.0 / (1.0 + np.exp(-(x - x0) / 0.25)) / (1.0 + np.exp(-(x1 - x) / 0.25))
+            below = 1.0 / (1.0 + np.exp(-(z - zs) / 0.2))
+            el = 1.0 / (1.0 + np.exp((abs(y - ys) - cast_half_width[k]) / 0.3))
+            a *= 1.0 - (1.0 - cast_factor[k]) * lat * below * el
         out[i] = a
     return out
 

@@ -242,6 +242,11 @@ def render_sequence(scanner: Scanner, traj: Trajectory, modality: str, rng: np.r
         images[i] = img
         tip, entry, direction, visible, tip3 = _labels(scanner, world, pts, tan, pp, tp,
                                                        modality, grid)
+        if visible and getattr(scanner, "display_mask", None) is not None:
+            # a tip under a capture margin or outside the sector is not shown
+            ij = np.clip(np.rint(grid.points_to_index(tip[None])[0]).astype(int), 0,
+                         np.asarray(grid.shape) - 1)
+            visible = bool(scanner.display_mask[tuple(ij)])
         tips[i], entries[i], dirs[i], vis[i], tip3s[i] = tip, entry, direction, visible, tip3
         if len(in_plane_pts):
             crs[i] = contrast_ratio(img, grid, in_plane_pts, r, valid)

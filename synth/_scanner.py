@@ -12,6 +12,13 @@ attenuation (dB/cm/MHz) and time-gain compensation, electronic noise (added befo
 grows with depth), envelope detection (modulus of IQ), log compression to 8 bits over a stated
 dynamic range.
 
+Then what a scanner's display adds (defaults: none of it): spatial compounding (``compound_looks``
+decorrelated speckle realisations averaged in intensity, which lowers the speckle's log
+standard deviation from 5.57 dB to 3.49 dB for two looks and 2.73 dB for three, see
+:func:`synth.speckle_log_std_db`), a TGC slider curve, reverberation bands between the probe
+face and the skin, a grey map after log compression (gamma, offset, white level) and, on 2D
+frames, black screen-capture margins and a sector (fan) mask.
+
 The needle is a specular reflector, not a diffuse scatterer: its echo depends on the angle
 between the beam and the shaft, it reverberates inside the shaft (a comet tail below it),
 it shadows the tissue behind it, and its bevel tip reflects strongly.
@@ -19,11 +26,13 @@ it shadows the tissue behind it, and its bevel tip reflects strongly.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
+from scipy.special import digamma
 
 from ._geometry import apply_transform, invert_rigid
 from ._kernels import (
@@ -38,7 +47,8 @@ from ._kernels import (
 from ._probe import PlaneProbe, SectorProbe
 from ._world import World
 
-__all__ = ["ImagingParams", "Scanner", "RenderedFrame", "NeedleEcho", "log_compress"]
+__all__ = ["ImagingParams", "Scanner", "RenderedFrame", "NeedleEcho", "log_compress",
+           "display_mask", "speckle_log_mean_db"]
 
 _FWHM = 2.0 * np.sqrt(2.0 * np.log(2.0))  # FWHM of a Gaussian = 2.3548 sigma
 _SPLAT_VAR = 1.0 / 6.0  # variance (px^2) of the linear splat kernel along one axis
@@ -63,17 +73,69 @@ class ImagingParams:
     speed_of_sound_m_s: float = 1540.0
     scatterers_per_cell: float = 40.0  # per resolution cell (FWHM box), at the smallest cell
     max_density_per_mm3: float = 2000.0
+    # spatial compounding: independent speckle realisations (looks) of the same tissue,
+    # averaged in intensity; the needle's coherent echo is the same in every look
+    compound_looks: int = 1
+    # TGC sliders: gains (dB) at evenly spaced depths from the first to the last row,
+    # interpolated between them; applied to echo and noise alike (empty: none)
+    tgc_curve_db: tuple = ()
+    # grey map after log compression: g -> 255 (min(g, gray_white) / gray_white)^gray_gamma
+    # + gray_offset (the identity with the defaults); gray_white < 255 saturates bright echoes
+    gray_gamma: float = 1.0
+    gray_offset: float = 0.0
+    gray_white: float = 255.0
+    # 2D frames: black screen-capture margins (top, bottom, left, right; mm of the frame's
+    # grid: the grid is unchanged, those pixels are 0) and a sector (fan) mask with its apex
+    # sector_apex_mm above the top row's centre (0: no mask); pixels outside are 0
+    margin_mm: tuple = (0.0, 0.0, 0.0, 0.0)
+    sector_half_angle_deg: float = 0.0
+    sector_apex_mm: float = 0.0
+    # reverberation between the probe face and the skin: bright bands every
+    # face_reverb_spacing_mm below the face, the first at face_reverb_gain (re unit speckle
+    # RMS), each face_reverb_decay times the one before (gain 0: none)
+    face_reverb_gain: float = 0.0
+    face_reverb_spacing_mm: float = 1.5
+    face_reverb_decay: float = 0.5
 
     def __post_init__(self) -> None:
         positive = ["center_frequency_mhz", "fractional_bandwidth", "f_number", "tx_focus_mm",
                     "tx_f_number", "elevation_focus_mm", "elevation_f_number",
-                    "dynamic_range_db", "speed_of_sound_m_s", "scatterers_per_cell"]
+                    "dynamic_range_db", "speed_of_sound_m_s", "scatterers_per_cell",
+                    "gray_gamma", "gray_white", "face_reverb_spacing_mm"]
         for name in positive:
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"ImagingParams.{name} must be positive, got {v}")
         if self.attenuation_db_cm_mhz < 0:
             raise ValueError("ImagingParams.attenuation_db_cm_mhz must be >= 0")
+        if int(self.compound_looks) != self.compound_looks or self.compound_looks < 1:
+            raise ValueError("ImagingParams.compound_looks must be a whole number >= 1, got "
+                             f"{self.compound_looks}")
+        object.__setattr__(self, "compound_looks", int(self.compound_looks))
+        object.__setattr__(self, "tgc_curve_db", tuple(float(v) for v in self.tgc_curve_db))
+        m = tuple(float(v) for v in self.margin_mm)
+        if len(m) != 4 or min(m) < 0:
+            raise ValueError("ImagingParams.margin_mm must be 4 values >= 0 (top, bottom, "
+                             f"left, right), got {self.margin_mm}")
+        object.__setattr__(self, "margin_mm", m)
+        if not 0.0 <= self.sector_half_angle_deg < 90.0 or self.sector_apex_mm < 0:
+            raise ValueError("ImagingParams.sector_half_angle_deg must be in [0, 90) and "
+                             "sector_apex_mm >= 0")
+        if self.gray_white > 255 or self.face_reverb_gain < 0 or \
+                not 0.0 <= self.face_reverb_decay < 1.0:
+            raise ValueError("ImagingParams: gray_white must be <= 255, face_reverb_gain >= 0 "
+                             "and face_reverb_decay in [0, 1)")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ImagingParams:
+        """The parameters a sequence's ``meta["imaging"]`` records (lists read as tuples)."""
+        names = set(cls.__dataclass_fields__)
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()
+                      if k in names})
+
+    @property
+    def has_gray_map(self) -> bool:
+        return (self.gray_gamma, self.gray_offset, self.gray_white) != (1.0, 0.0, 255.0)
 
     @property
     def wavelength_mm(self) -> float:
@@ -126,15 +188,50 @@ class ImagingParams:
         return 10.0 ** (-db / 20.0)
 
 
-def log_compress(envelope: np.ndarray, params: ImagingParams) -> np.ndarray:
-    """Envelope (unit-echogenicity speckle has RMS 1) -> uint8 over the dynamic range.
+def speckle_log_mean_db(looks: int = 1) -> float:
+    """Mean of 10 log10 of the intensity of fully developed speckle of unit mean intensity,
+    averaged over ``looks`` independent looks (a Gamma(looks) intensity):
+    10 / ln 10 (psi(looks) - ln looks); -2.507 dB for one look."""
+    if looks == 1:
+        return -2.507
+    return float(10.0 / np.log(10.0) * (digamma(looks) - np.log(looks)))
 
-    The mean of 20 log10 of a Rayleigh envelope of unit RMS is -2.507 dB, so unit speckle
-    lands at ``tissue_gray`` on average.
+
+def log_compress(envelope: np.ndarray, params: ImagingParams) -> np.ndarray:
+    """Envelope (unit-echogenicity speckle has RMS 1) -> uint8 over the dynamic range, then
+    the grey map.
+
+    The mean of 20 log10 of a Rayleigh envelope of unit RMS is -2.507 dB (of ``looks``
+    compounded looks: :func:`speckle_log_mean_db`), so unit speckle lands at ``tissue_gray``
+    on average before the grey map.
     """
-    db = 20.0 * np.log10(np.maximum(envelope, 1e-12)) + 2.507
+    db = 20.0 * np.log10(np.maximum(envelope, 1e-12)) - speckle_log_mean_db(
+        params.compound_looks)
     gray = params.tissue_gray + db * (255.0 / params.dynamic_range_db)
+    if params.has_gray_map:
+        g = np.clip(gray, 0.0, params.gray_white) / np.float32(params.gray_white)
+        gray = 255.0 * g ** np.float32(params.gray_gamma) + np.float32(params.gray_offset)
     return np.clip(np.rint(gray), 0, 255).astype(np.uint8)
+
+
+def display_mask(grid, params: ImagingParams) -> np.ndarray | None:
+    """Where a 2D frame shows the scan (True) and where it is black (False): the capture
+    margins and the sector mask of ``params`` on ``grid`` (depth, lateral); None when there
+    are neither (and for 3D grids, which have no display mask)."""
+    if grid.ndim != 2 or (not any(params.margin_mm) and params.sector_half_angle_deg == 0):
+        return None
+    z = np.asarray(grid.axis_coords(0))[:, None]
+    x = np.asarray(grid.axis_coords(1))[None, :]
+    top, bottom, left, right = params.margin_mm
+    keep = ((z >= z[0, 0] + top) & (z <= z[-1, 0] - bottom)
+            & (x >= x[0, 0] + left) & (x <= x[0, -1] - right))
+    if params.sector_half_angle_deg > 0:
+        xc = 0.5 * (x[0, 0] + x[0, -1])
+        za = z[0, 0] - params.sector_apex_mm
+        ang = np.degrees(np.arctan2(np.abs(x - xc), z - za))
+        r = np.hypot(x - xc, z - za)
+        keep &= (ang <= params.sector_half_angle_deg) & (r >= params.sector_apex_mm)
+    return keep
 
 
 def _key(a) -> bytes:
@@ -255,12 +352,24 @@ class Scanner:
         self._ref = np.sqrt(ref2)
         att = p.two_way_attenuation(self._rows_mm)
         tgc = att ** (-p.tgc_compensation)
+        if p.tgc_curve_db:
+            z = self._rows_mm
+            knots = np.linspace(z.min(), z.max(), len(p.tgc_curve_db))
+            tgc = tgc * 10.0 ** (np.interp(z, knots, p.tgc_curve_db) / 20.0)
         # tissue and needle are scaled by att * tgc / ref; noise by tgc
         self._row_gain_signal = (att * tgc / self._ref).astype(np.float32)
         self._row_gain_noise = tgc.astype(np.float32)
         self._noise_sigma = 10.0 ** (p.noise_db / 20.0) / np.sqrt(2.0)
         self._noise_row_scale = self._rows_view(
             (self._noise_sigma * self._row_gain_noise).astype(np.float32))
+        # compounding: look k > 0 images the same tissue (map) with its own scatterers
+        t = self.world.tissue
+        self._look_tissues = [t] + [dataclasses.replace(t, seed=(int(t.seed) * 7919 + k)
+                                                        & 0x7FFFFFFFFFFFFFFF)
+                                    for k in range(1, p.compound_looks)]
+        self._look_cache: dict = {}
+        self._face_reverb = self._face_reverb_iq()
+        self._mask = display_mask(probe.grid, p) if isinstance(probe, PlaneProbe) else None
 
     @property
     def field_cache_size(self) -> int:
@@ -301,6 +410,43 @@ class Scanner:
             iq *= self._rows_view(self._row_gain_signal)
         self._cache_key, self._cache_iq = key, iq
         return iq
+
+    def look_iq(self, tissue_to_probe: np.ndarray, look: int) -> np.ndarray:
+        """Normalised tissue IQ of compounding look ``look`` (0: :meth:`tissue_iq`); other
+        looks are imaged directly and the last one of each is kept."""
+        if look == 0:
+            return self.tissue_iq(tissue_to_probe)
+        M = np.asarray(tissue_to_probe, float)
+        key = _key(M)
+        hit = self._look_cache.get(look)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        iq = self._render_tissue(M, self._look_tissues[look])
+        iq *= self._rows_view(self._row_gain_signal)
+        self._look_cache[look] = (key, iq)
+        return iq
+
+    def _face_reverb_iq(self) -> tuple[int, np.ndarray] | None:
+        """The probe-face reverberation bands: (rows, IQ of those top rows), laterally
+        uniform, one pulse (the axial PSF) per band, coherent (zero phase); None when off."""
+        p = self.params
+        if p.face_reverb_gain <= 0:
+            return None
+        z = self._rows_mm
+        n_bands = int(np.ceil(np.log(0.02) / np.log(max(p.face_reverb_decay, 1e-3)))) + 1
+        zk = p.face_reverb_spacing_mm * np.arange(1, n_bands + 1)
+        amp = p.face_reverb_gain * p.face_reverb_decay ** np.arange(n_bands)
+        rows = int(np.searchsorted(z, zk[-1] + 4.0 * p.sigma_axial_mm)) + 1
+        rows = min(rows, len(z))
+        if rows < 1:
+            return None
+        prof = (amp[None] * np.exp(-0.5 * ((z[:rows, None] - zk[None]) / p.sigma_axial_mm)
+                                   ** 2)).sum(1)
+        if prof.max() < 1e-6:
+            return None
+        iq = np.zeros((rows, *self._shape[1:], 2), np.float32)
+        iq[..., 0] = prof.reshape((-1,) + (1,) * (len(self._shape) - 1)).astype(np.float32)
+        return rows, iq
 
     # A plane probe's tissue echo as a 3D field over (depth, elevation, lateral), exact for
     # translations of the probe in x and y (the PSF and the phase depend on depth only).
@@ -417,15 +563,16 @@ class Scanner:
                 "x_lo": x_col0 + mx * dx, "x_hi": x_col0 + (nxf - 1 - mx) * dx,
                 "y_lo": y_plane0 + my * dy, "y_hi": y_plane0 + (nyf - 1 - my) * dy}
 
-    def _render_tissue(self, M: np.ndarray) -> np.ndarray:
+    def _render_tissue(self, M: np.ndarray, tissue=None) -> np.ndarray:
         probe, p = self.probe, self.params
+        tissue = self.world.tissue if tissue is None else tissue
         el_half = 3.0 * float(self._sig_el_mm.max())
         margin = 3.0 * float(max(self._sig_lat_mm.max(), p.sigma_axial_mm))
         lo, hi = probe.region_box(margin, el_half)
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                             for z in (lo[2], hi[2])])
         ct = apply_transform(invert_rigid(M), corners)
-        pos, amp = self.world.tissue.scatterers_in_box(ct.min(0), ct.max(0))
+        pos, amp = tissue.scatterers_in_box(ct.min(0), ct.max(0))
         R = np.ascontiguousarray(M[:3, :3], dtype=np.float64)
         t = np.ascontiguousarray(M[:3, 3], dtype=np.float64)
         bg = probe.beam_grid
@@ -439,7 +586,7 @@ class Scanner:
         else:
             keep = keep_box(pos, R, t, lo, hi)
         pos = pos[keep]
-        amp = self.world.tissue.modulate(pos, amp[keep])
+        amp = tissue.modulate(pos, amp[keep])
         iq = np.zeros((*self._shape, 2), np.float32)
         two_k = 2.0 * p.k0_per_mm  # exact two-way phase of every scatterer
         if isinstance(probe, PlaneProbe):
@@ -476,6 +623,7 @@ class Scanner:
         if not np.any(near):
             return None
         keep_tip = bool(near[-1])
+        sample_index = np.flatnonzero(near)  # samples are step_mm apart from the entry
         pts, tan = pts[near], tan[near]
         b = probe.beam_direction(pts)
         bu = np.einsum("nd,nd->n", b, tan)
@@ -507,13 +655,32 @@ class Scanner:
         # reverberations between the walls: echoes about a radius apart (the lumen of a
         # hollow needle is ~3/4 of its diameter), the comet tail below real shafts
         spacing = spec.reverb_spacing_mm or r
+        f_diff = float(spec.diffuse_fraction)
+        coherent = strength * np.sqrt(1.0 - f_diff) if f_diff > 0 else strength
         k = np.arange(spec.reverb_count + 1)
         rev_pts = (wall[None, :, :] + (k[:, None, None] * spacing) * b[None]).reshape(-1, 3)
-        rev_amp = ((spec.reverb_decay ** k)[:, None] * strength[None, :]).reshape(-1)
+        rev_amp = ((spec.reverb_decay ** k)[:, None] * coherent[None, :]).reshape(-1)
         # the bevel: a bright echo at the tip
         tip_amp = spec.tip_gain * spec.echo * norm[-1] * w_e[-1] if keep_tip else 0.0
         all_pts = np.concatenate([rev_pts, wall[-1:]])
         all_amp = np.concatenate([rev_amp, [tip_amp]]).astype(np.float32)
+        all_phase = np.zeros(len(all_amp))
+        if f_diff > 0:
+            # diffuse scatterers across the shaft (wall to far wall) with fixed random phases:
+            # n samples of random phase sum to sqrt(n) times one, so each is scaled by the
+            # square root of the samples in the PSF's extent along the shaft (same mean
+            # intensity as the coherent echo it replaces)
+            u = np.random.default_rng(spec.diffuse_seed).random(
+                2 * (int(sample_index[-1]) + 1)).reshape(-1, 2)[sample_index]
+            sig_mm = [sp * e for sp, e in zip(px, eff, strict=True)]
+            t_img = tan[:, [2, 0]] if probe.ndim == 2 else tan[:, [2, 1, 0]]  # array order
+            along = np.sqrt(sum((sg * t_img[:, a]) ** 2 for a, sg in enumerate(sig_mm)))
+            n_cell = 2.0 * np.sqrt(np.pi) * along / step_mm
+            d_amp = strength * np.sqrt(f_diff * np.maximum(n_cell, 1.0))
+            d_pts = wall + (2.0 * r * u[:, :1]) * nb
+            all_pts = np.concatenate([all_pts, d_pts])
+            all_amp = np.concatenate([all_amp, d_amp.astype(np.float32)])
+            all_phase = np.concatenate([all_phase, 2.0 * np.pi * u[:, 1]])
         keep = all_amp > 1e-6
         sp_idx = probe.to_beam_index(all_pts[keep])
         occ_idx = probe.to_beam_index(pts + r * b)  # behind the shaft: the shadow starts here
@@ -528,7 +695,7 @@ class Scanner:
         crop = tuple(int(v) for v in hi - lo)
         sl = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi, strict=True))
         # the specular echo is coherent along the shaft: zero phase (no speckle on the needle)
-        iq = splat(sp_idx - lo, all_amp[keep], np.zeros(int(keep.sum())), crop)
+        iq = splat(sp_idx - lo, all_amp[keep], all_phase[keep], crop)
         for axis, s in enumerate(self._sig_px):
             iq = _blur_axis(iq, axis, s[sl[0]])
         att = p.two_way_attenuation(self._rows_mm[sl[0]]) ** (1.0 - p.tgc_compensation)
@@ -558,11 +725,24 @@ class Scanner:
         if not self.zhao_mode and len(needle_pts):
             echo = self.needle_iq(needle_pts, needle_tan, step_mm)
         env = self.envelope(iq, echo, rng, needle_gain)
+        if self.params.compound_looks > 1:
+            inten = env * env
+            for k in range(1, self.params.compound_looks):
+                e = self.envelope(self.look_iq(tissue_to_probe, k), echo, rng, needle_gain)
+                inten += e * e
+            env = np.sqrt(inten / np.float32(self.params.compound_looks))
         img = log_compress(env, self.params)
         img = self.probe.scan_convert(img)
         if isinstance(self.probe, SectorProbe):
             img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        if self._mask is not None:
+            img[~self._mask] = 0
         return RenderedFrame(image=img, envelope=env, needle_gain=needle_gain)
+
+    @property
+    def display_mask(self) -> np.ndarray | None:
+        """The frame's display mask (see :func:`display_mask`), or None."""
+        return self._mask
 
     def envelope(self, iq, echo: NeedleEcho | None, rng, needle_gain: float = 1.0) -> np.ndarray:
         """|tissue * shadow + gain * needle + noise| with the noise scaled by TGC per row."""
@@ -573,6 +753,9 @@ class Scanner:
         cv2.randn(noise.reshape(noise.shape[0], -1), 0.0, 1.0)
         noise *= self._noise_row_scale
         noise += iq
+        if self._face_reverb is not None:
+            rows, band = self._face_reverb
+            noise[:rows] += band
         if echo is not None:
             sl = echo.region
             noise[sl] += iq[sl] * (echo.shadow[..., None] - np.float32(1.0))

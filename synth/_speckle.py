@@ -11,10 +11,20 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["RAYLEIGH_SNR", "RAYLEIGH_LOG_STD_DB", "envelope_snr", "log_std_db",
-           "speckle_fwhm"]
+           "speckle_fwhm", "speckle_log_std_db"]
 
 RAYLEIGH_SNR = float(np.sqrt(np.pi / (4.0 - np.pi)))  # 1.913
 RAYLEIGH_LOG_STD_DB = float(10.0 / np.log(10.0) * np.pi / np.sqrt(6.0))  # 5.57 dB
+
+
+def speckle_log_std_db(looks: int = 1) -> float:
+    """Standard deviation (dB) of the log-compressed speckle of ``looks`` independent looks
+    averaged in intensity (a Gamma(looks) intensity): 10 / ln 10 sqrt(psi'(looks)); 5.57 dB
+    for one look, 3.49 for two, 2.73 for three. Compounding lowers it; correlated looks (as
+    from close steering angles) lower it less."""
+    from scipy.special import polygamma
+
+    return float(10.0 / np.log(10.0) * np.sqrt(polygamma(1, int(looks))))
 
 
 def envelope_snr(envelope: np.ndarray) -> float:

@@ -34,7 +34,7 @@ __all__ = [
 # Nominal outer diameters (mm) of needle gauges (Stubs / ISO 9626 nominal values).
 GAUGE_OUTER_DIAMETER_MM = {
     12: 2.769, 13: 2.413, 14: 2.108, 15: 1.829, 16: 1.651, 17: 1.473, 18: 1.270,
-    19: 1.067, 20: 0.908, 21: 0.819, 22: 0.718, 23: 0.642, 25: 0.515, 27: 0.413,
+    19: 1.067, 20: 0.908, 21: 0.819, 22: 0.718, 23: 0.642, 24: 0.566, 25: 0.515, 27: 0.413,
 }
 
 
@@ -52,7 +52,8 @@ class ScatteringMap:
     """Amplitude multiplier of the tissue scatterers as a function of position (tissue frame).
 
     All arrays are small (a handful of structures); evaluation is vectorised over points.
-    ``amplitude(points) = exp(sigma * smooth) * interfaces * lines * cysts * distractors``.
+    ``amplitude(points) = exp(sigma * smooth) * interfaces * lines * cysts * distractors
+    * vessels * shadows``.
     """
 
     smooth_sigma: float = 0.0  # std of the log-amplitude of the smooth inhomogeneity
@@ -72,6 +73,20 @@ class ScatteringMap:
     cyst_centers: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     cyst_radii: np.ndarray = field(default_factory=lambda: np.zeros(0))
     cyst_factor: float = 0.03
+    # vessels: tubes (segment, radius mm) with an amplitude factor inside (about 0: anechoic)
+    # and an echogenic wall (amplitude gain at the wall, 0: none)
+    tube_a: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    tube_b: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    tube_radius: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    tube_factor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    tube_wall: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # acoustic shadows behind occluders (bone, calcification, gas): the tissue deeper than the
+    # segment a-b keeps a factor of its amplitude (the beam along +z of the tissue frame, as
+    # for a probe at the identity pose); half-width in elevation (mm)
+    cast_a: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    cast_b: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    cast_factor: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cast_half_width: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     _SMOOTH_STEP_MM = 1.0
 
@@ -82,6 +97,8 @@ class ScatteringMap:
             and len(self.interface_offsets) == 0
             and len(self.line_radius) == 0
             and len(self.cyst_radii) == 0
+            and len(self.tube_radius) == 0
+            and len(self.cast_factor) == 0
         )
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
@@ -111,7 +128,10 @@ class ScatteringMap:
             f(self.interface_factors, -1), f(self.interface_brightness, -1),
             f(self.line_a, (-1, 3)), f(self.line_b, (-1, 3)), f(self.line_radius, -1),
             f(self.line_gain, -1), f(self.cyst_centers, (-1, 3)), f(self.cyst_radii, -1),
-            float(self.cyst_factor))
+            float(self.cyst_factor), f(self.tube_a, (-1, 3)), f(self.tube_b, (-1, 3)),
+            f(self.tube_radius, -1), f(self.tube_factor, -1), f(self.tube_wall, -1),
+            f(self.cast_a, (-1, 3)), f(self.cast_b, (-1, 3)), f(self.cast_factor, -1),
+            f(self.cast_half_width, -1))
 
 
 @dataclass(frozen=True)
@@ -170,7 +190,12 @@ class NeedleSpec:
     reverb_count: int = 6
     reverb_spacing_mm: float | None = None  # defaults to the needle radius
     shadow_factor: float = 0.35  # tissue amplitude left behind the shaft
-    tip_gain: float = 2.5  # bevel echo relative to one millimetre of shaft
+    tip_gain: float = 2.5  # bevel echo relative to one millimetre of shaft (0: a dark bevel)
+    # share of the shaft echo scattered diffusely (random phase along and across the shaft: a
+    # speckled band, as a rough or coated needle or a needle in a guide shows) rather than
+    # reflected coherently; its mean intensity per mm of shaft equals the coherent echo's
+    diffuse_fraction: float = 0.0
+    diffuse_seed: int = 0  # the diffuse scatterers' phases (fixed along the shaft)
 
     @property
     def radius_mm(self) -> float:
