@@ -42,7 +42,7 @@ class LineSearchParams:
     """
 
     work_spacing_mm: float = 0.2
-    max_points: int = 2000
+    max_points: int = 1000
     angle_step_deg: float = 2.0
     rho_bin_mm: float = 0.4
     peaks: int = 3
@@ -144,27 +144,28 @@ def hough_peaks(pts: np.ndarray, w: np.ndarray, thetas_rad: np.ndarray, rho_bin_
     Votes are summed over three adjacent rho bins, so a line on a bin edge is not split.
     Peaks closer than ``min_separation`` (radians, mm) to a stronger one are skipped."""
     thetas = np.asarray(thetas_rad, float)
-    rho = pts @ _normal(thetas).T  # (N, A)
+    rho = pts.astype(np.float32) @ _normal(thetas).T.astype(np.float32)  # (N, A)
     lo = float(rho.min()) if rho_window is None else float(rho_window[0])
     hi = float(rho.max()) if rho_window is None else float(rho_window[1])
     n_bins = max(int(np.ceil((hi - lo) / rho_bin_mm)) + 1, 1)
-    b = np.floor((rho - lo) / rho_bin_mm).astype(np.int64)
-    ok = (b >= 0) & (b < n_bins)
-    a_idx = np.broadcast_to(np.arange(len(thetas)), b.shape)
-    acc = np.bincount((a_idx[ok] * n_bins + b[ok]),
-                      weights=np.broadcast_to(w[:, None], b.shape)[ok],
+    b = ((rho - lo) * (1.0 / rho_bin_mm)).astype(np.int32)
+    b += (np.arange(len(thetas), dtype=np.int32) * n_bins)[None, :]
+    weights = np.broadcast_to(np.asarray(w, np.float32)[:, None], b.shape)
+    if rho_window is not None:  # keep the votes inside the window
+        ok = (rho >= lo) & (rho < lo + n_bins * rho_bin_mm)
+        b, weights = b[ok], weights[ok]
+    acc = np.bincount(b.ravel(), weights=weights.ravel(),
                       minlength=len(thetas) * n_bins).reshape(len(thetas), n_bins)
     acc = ndimage.uniform_filter1d(acc, 3, axis=1, mode="constant") * 3.0
     flat_acc = acc.ravel()
-    top = min(50 * n_peaks, flat_acc.size)  # the strongest cells only: n_peaks separated maxima
-    order = np.argpartition(flat_acc, flat_acc.size - top)[flat_acc.size - top:]
+    order = np.flatnonzero(flat_acc > 0)  # most cells are empty (and slow to partition)
+    top = min(50 * n_peaks, order.size)  # the strongest cells only: n_peaks separated maxima
+    order = order[np.argpartition(flat_acc[order], order.size - top)[order.size - top:]]
     order = order[np.argsort(flat_acc[order])[::-1]]
     out: list[tuple[float, float, float]] = []
     for flat in order:
         ia, ib = divmod(int(flat), n_bins)
         th, r = float(thetas[ia]), lo + (ib + 0.5) * rho_bin_mm
-        if acc[ia, ib] <= 0:
-            break
         if all(abs(_angle_diff(th, t0)) > min_separation[0] or abs(r - r0) > min_separation[1]
                for t0, r0, _ in out):
             out.append((th, r, float(acc[ia, ib])))
@@ -192,8 +193,8 @@ def refine_line(pts: np.ndarray, w: np.ndarray, theta: float, rho: float,
         p, ww = pts[sel], w[sel]
         c = (ww[:, None] * p).sum(0) / ww.sum()
         q = p - c
-        cov = (ww[:, None, None] * (q[:, :, None] * q[:, None, :])).sum(0) / ww.sum()
-        evals, evecs = np.linalg.eigh(cov)
+        cov = (q * ww[:, None]).T @ q / ww.sum()
+        _, evecs = np.linalg.eigh(cov)
         d = evecs[:, 1]
         n = np.array([-d[1], d[0]])
     return c, d / np.linalg.norm(d)
