@@ -42,7 +42,7 @@ class LineSearchParams:
     """
 
     work_spacing_mm: float = 0.2
-    max_points: int = 1000
+    max_points: int = 2000
     angle_step_deg: float = 2.0
     rho_bin_mm: float = 0.4
     peaks: int = 3
