@@ -16,7 +16,7 @@ import numpy as np
 from ._base import FeatureSource, Frame, Likelihood
 from ._resample import (
     NORMALIZATIONS,
-    image_level,
+    frame_statistics,
     normalize,
     pad_to_multiple,
     to_frame_grid,
@@ -90,7 +90,7 @@ class LearnedFeatures(FeatureSource):
             self.modality = meta["modality"]
             self.spacing_mm = tuple(float(v) for v in json.loads(meta["spacing_mm"]))
             norm = json.loads(meta["normalization"])
-            self.normalization = {"mode": str(norm.get("mode", "fixed")),
+            self.normalization = {**norm, "mode": str(norm.get("mode", "fixed")),
                                   "scale": float(norm["scale"]), "mean": float(norm["mean"]),
                                   "std": float(norm["std"])}
             if self.normalization["mode"] not in NORMALIZATIONS:
@@ -120,10 +120,10 @@ class LearnedFeatures(FeatureSource):
 
     def run_model(self, image: np.ndarray, spacing_mm, level: float | None = None) -> np.ndarray:
         """Maps (2, *image.shape) in [0, 1] for an image at ``spacing_mm``; ``level``: the
-        whole frame's :func:`image_level` when ``image`` is an ROI of it."""
+        whole frame's :func:`frame_statistics` when ``image`` is an ROI of it."""
         x = to_model_grid(image, spacing_mm, self.spacing_mm)
-        if self.normalization["mode"] == "median" and level is None:
-            level = image_level(image)
+        if level is None:
+            level = frame_statistics(image, self.normalization)
         x = normalize(x, self.normalization, level)
         xp, crop = pad_to_multiple(x, self.multiple)
         y = self.session.run(["likelihood"], {"image": xp[None, None].astype(np.float32)})[0][0]
@@ -141,7 +141,7 @@ class LearnedFeatures(FeatureSource):
         m = [int(np.ceil(self.margin_mm / s)) for s in sp]
         big = tuple(slice(max((r.start or 0) - k, 0), min((r.stop or n) + k, n))
                     for r, k, n in zip(roi, m, im.shape, strict=True))
-        level = image_level(im) if self.normalization["mode"] == "median" else None
+        level = frame_statistics(im, self.normalization)
         maps = self.run_model(im[big], sp, level)
         shaft = np.zeros(im.shape, np.float32)
         tip = np.zeros(im.shape, np.float32)

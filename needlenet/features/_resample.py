@@ -7,17 +7,24 @@ import cv2
 import numpy as np
 
 __all__ = ["model_shape", "to_model_grid", "to_frame_grid", "pad_to_multiple", "image_level",
-           "normalize", "NORMALIZATIONS"]
+           "image_statistics", "frame_statistics", "normalize", "NORMALIZATIONS"]
 
 # Intensity normalisations a model can be trained with (stored in its ONNX metadata):
 # "fixed": (I / 255 - 0.35) / 0.25, the same for every image;
 # "median": I / level - 1 with level the median of the frame's non-zero pixels: invariant to
 #   the scanner's gain and to the tissue's grey level, so a needle at contrast ratio CR
 #   (Zhao eq. 9) reads CR - 1 whatever the preset.
+# "robust": (I - median) / (1.4826 MAD) over the frame's non-zero pixels, clipped to "clip";
+#   zero pixels (black capture margins, outside a sector) read "zero_value". Log compression
+#   turns a gain change into a grey offset and a dynamic-range change into a grey scale, so
+#   this input is invariant to both (1.4826 MAD is the standard deviation of a Gaussian).
 NORMALIZATIONS = {
     "fixed": {"mode": "fixed", "scale": 1 / 255.0, "mean": 0.35, "std": 0.25},
     "median": {"mode": "median", "scale": 1.0, "mean": 1.0, "std": 1.0},
+    "robust": {"mode": "robust", "scale": 1.0, "mean": 0.0, "std": 1.0, "clip": [-4.0, 12.0],
+               "zero_value": -3.0},
 }
+MAD_TO_SIGMA = 1.4826  # 1 / Phi^-1(3/4): the MAD of a Gaussian times this is its sigma
 
 
 def model_shape(shape, spacing_mm, model_spacing_mm) -> tuple[int, ...]:
@@ -75,20 +82,51 @@ def pad_to_multiple(a: np.ndarray, multiple: int) -> tuple[np.ndarray, tuple[sli
     return np.pad(a, pads, mode="edge"), tuple(slice(0, n) for n in a.shape)
 
 
-def image_level(image: np.ndarray, max_samples: int = 65536) -> float:
-    """The median of the non-zero pixels (zero: outside a sector scan) of a regular
-    subsample of ``image``; 1.0 for an all-zero image."""
+def _nonzero_subsample(image: np.ndarray, max_samples: int) -> np.ndarray:
     a = np.asarray(image)
     step = max(1, int(np.ceil((a.size / max_samples) ** (1.0 / a.ndim))))
     sub = a[(slice(None, None, step),) * a.ndim]
-    nz = sub[sub > 0]
+    return sub[sub != 0]
+
+
+def image_level(image: np.ndarray, max_samples: int = 65536) -> float:
+    """The median of the non-zero pixels (zero: outside a sector scan) of a regular
+    subsample of ``image``; 1.0 for an all-zero image."""
+    nz = _nonzero_subsample(image, max_samples)
     return float(np.median(nz)) if nz.size else 1.0
+
+
+def image_statistics(image: np.ndarray, max_samples: int = 65536) -> tuple[float, float]:
+    """(median, 1.4826 MAD) of the non-zero pixels of a regular subsample of ``image``: the
+    robust centre and spread of the ``"robust"`` normalisation. The spread falls back to the
+    standard deviation where the MAD is 0, and to 1 where that is 0 too (one grey value);
+    an all-zero image gives (0, 1)."""
+    nz = _nonzero_subsample(image, max_samples).astype(np.float64)
+    if nz.size == 0:
+        return 0.0, 1.0
+    med = float(np.median(nz))
+    spread = MAD_TO_SIGMA * float(np.median(np.abs(nz - med)))
+    if not spread > 0:
+        spread = float(nz.std())
+    return med, (spread if spread > 0 else 1.0)
+
+
+def frame_statistics(image: np.ndarray, norm: dict):
+    """What :func:`normalize` needs from the whole frame under ``norm``: None ("fixed"),
+    :func:`image_level` ("median") or :func:`image_statistics` ("robust"). An ROI is
+    normalised with its frame's statistics."""
+    mode = norm.get("mode", "fixed")
+    if mode == "median":
+        return image_level(image)
+    if mode == "robust":
+        return image_statistics(image)
+    return None
 
 
 def normalize(x: np.ndarray, norm: dict, level: float | None = None) -> np.ndarray:
     """Model input from grey levels ``x`` (0-255, float32) under normalisation ``norm``
-    (see :data:`NORMALIZATIONS`); ``level`` is :func:`image_level` of the whole frame for
-    ``"median"`` (an ROI is normalised like the frame it comes from)."""
+    (see :data:`NORMALIZATIONS`); ``level`` is :func:`frame_statistics` of the whole frame
+    (an ROI is normalised like the frame it comes from; computed from ``x`` when None)."""
     mode = norm.get("mode", "fixed")
     mean, std = np.float32(norm["mean"]), np.float32(norm["std"])
     if mode == "fixed":
@@ -97,4 +135,12 @@ def normalize(x: np.ndarray, norm: dict, level: float | None = None) -> np.ndarr
         if level is None:
             level = image_level(x)
         return (x / np.float32(max(level, 1e-3)) - mean) / std
+    if mode == "robust":
+        med, spread = image_statistics(x) if level is None else level
+        lo, hi = norm.get("clip", NORMALIZATIONS["robust"]["clip"])
+        z = np.clip((x - np.float32(med)) / np.float32(spread), np.float32(lo), np.float32(hi))
+        z = (z - mean) / std
+        return np.where(x == 0, np.float32(norm.get("zero_value",
+                                                     NORMALIZATIONS["robust"]["zero_value"])),
+                        z).astype(np.float32)
     raise ValueError(f"unknown intensity normalisation mode {mode!r}")

@@ -132,3 +132,38 @@ def test_shipped_model_finds_the_needle(modality):
         # the map at the true tip is at least half its maximum
         at_tip = lk.tip[tuple(np.rint(g.points_to_index(tip_true)).astype(int))]
         assert at_tip >= 0.5 * lk.tip.max()
+
+
+def test_robust_normalisation_is_invariant_to_gain_and_dynamic_range(tmp_path):
+    """Log compression makes a gain change a grey offset and a dynamic-range change a grey
+    scale; the "robust" input (I - median) / (1.4826 MAD) over non-zero pixels ignores both,
+    zero (black margin) pixels read a fixed value, and the model's metadata names the mode."""
+    from needlenet.features._resample import NORMALIZATIONS, image_statistics, normalize
+    from training.export import export_onnx
+    from training.networks import NeedleNet2D
+
+    norm = NORMALIZATIONS["robust"]
+    rng = np.random.default_rng(3)
+    img = rng.normal(80.0, 12.0, (120, 90)).clip(1, 255).astype(np.float32)
+    img[40:44, 10:80] = 200.0  # a bright line
+    img[:, :8] = 0.0  # a black capture margin
+    med, spread = image_statistics(img)
+    inside = img[img > 0]
+    assert med == pytest.approx(np.median(inside))
+    assert spread == pytest.approx(1.4826 * np.median(np.abs(inside - med)))
+    z = normalize(img, norm)
+    for scale, offset in ((1.7, -35.0), (0.55, 40.0)):
+        changed = np.where(img > 0, img * np.float32(scale) + np.float32(offset), 0.0)
+        np.testing.assert_allclose(normalize(changed.astype(np.float32), norm), z, atol=1e-5)
+    assert np.all(z[:, :8] == norm["zero_value"])
+    assert z.min() >= norm["clip"][0] and z.max() <= norm["clip"][1]
+    torch.manual_seed(2)
+    export_onnx(NeedleNet2D().eval(), "inplane", 0.2, tmp_path / "r.onnx", normalization="robust")
+    f = LearnedFeatures(tmp_path / "r.onnx", "inplane")
+    assert f.normalization == norm
+    g = synth.Grid(img.shape, (0.2, 0.2), (0.0, 0.0))
+    frame = np.rint(img).astype(np.uint8)
+    brighter = np.where(frame > 0, frame.astype(np.float32) * 0.8 + 30, 0)
+    a = f.likelihood(Frame(frame.astype(np.float32), g)).shaft
+    b = f.likelihood(Frame(brighter.astype(np.float32), g)).shaft
+    np.testing.assert_allclose(a, b, atol=1e-4)
