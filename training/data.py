@@ -5,12 +5,18 @@ angles and speeds, contrast, gauge, depth, inhomogeneous backgrounds with bright
 tissue motion, needles partly out of plane, frames with no needle at all, and the scanner
 itself (centre frequency, bandwidth, f-numbers, foci, dynamic range, gain, TGC, noise,
 speckle density, needle echo, reverberation, shadow), so that the model does not learn one
-simulator's look. Frames are resampled to the model's spacing with the runtime's own function.
+simulator's look. In-plane worlds go further (:func:`randomize_inplane`): needles from either
+side through the skin or the lateral border at 3-85 degrees, gauges 14-25, specular or diffuse
+shafts with or without reverberation tails, bright or dark bevels, 3-15 MHz, compounding, TGC
+curves, grey maps, capture margins, sector masks, probe-face reverberation, interfaces parallel
+to the needle, vessels, shadows and needle-free worlds. Frames are resampled to the model's
+spacing with the runtime's own function.
 
 Targets (on the network's output grid, half the input resolution): shaft = a Gaussian of the
 3D distance to the labelled centreline (sigma about the needle radius), tip = a Gaussian of the
-distance to the tip. Distances are taken in the probe frame in 3D, so a needle partly out of
-the image plane fades from the targets as it fades from the image.
+distance to where the visible shaft ends (:func:`visible_end`). Distances are taken in the
+probe frame in 3D, so a needle partly out of the image plane fades from the targets as it fades
+from the image; pixels a display mask blacks out have no target.
 """
 
 from __future__ import annotations
@@ -26,15 +32,16 @@ import synth
 from needlenet.features._learned import wall_offsets
 from needlenet.features._resample import (
     NORMALIZATIONS,
-    image_level,
+    frame_statistics,
     normalize,
     to_model_grid,
 )
 
 from .networks import INPUT_MULTIPLE, OUTPUT_STRIDE
 
-__all__ = ["DataConfig", "randomize", "make_targets", "target_reference", "wall_offsets",
-           "SynthStream", "SynthDataModule", "sample_from_sequence", "prepare_frame",
+__all__ = ["DataConfig", "randomize", "randomize_inplane", "make_targets", "visible_end",
+           "target_reference", "wall_offsets", "SynthStream", "SynthDataModule",
+           "sample_from_sequence", "prepare_frame",
            "validation_set", "simplify_polyline", "model_output_grid", "INTENSITY_MEAN",
            "INTENSITY_STD"]
 
@@ -123,15 +130,7 @@ def randomize(modality: str, rng: np.random.Generator,
         "imaging_overrides": imaging, "needle_overrides": needle,
     }
     if modality == "inplane":
-        start = _u(rng, 0.0, 30.0)
-        return "inplane", {
-            **common, "angle_deg": _u(rng, 15, 70), "speed_mm_s": _u(rng, 3, 20),
-            "spacing_mm": _u(rng, 0.12, 0.3), "width_mm": _u(rng, 26, 40),
-            "depth_mm": _u(rng, 28, 50), "start_length_mm": start,
-            "stop_length_mm": start + 30.0, "out_of_plane_deg": _u(rng, -3, 3),
-            "elevation_offset_mm": float(rng.normal(0, 0.7)),
-            "tissue_motion_mm": _u(rng, 0, 2) if rng.random() < 0.3 else 0.0,
-        }
+        return "inplane", randomize_inplane(rng, common)
     if modality == "axial":
         if rng.random() < 0.3:
             return "servo", {**common, "start_sample": int(rng.integers(150, 1900)),
@@ -165,6 +164,81 @@ def randomize(modality: str, rng: np.random.Generator,
             "volume_rate_hz": 2.0,
         }
     raise ValueError(f"unknown modality {modality!r}")
+
+
+def _maybe(rng, p: float) -> bool:
+    return bool(rng.random() < p)
+
+
+def randomize_inplane(rng: np.random.Generator, common: dict) -> dict:
+    """The in-plane world's overrides: ``common`` (the draws every modality shares) widened
+    to every axis a real scanner or insertion varies. Shares: needle-free worlds 10%; entry
+    through the lateral border 35%; shallow (3-20 degree) insertions 40%; compounding 2-3
+    looks 50%; grey maps 50%; TGC curves 50%; capture margins 30%; sector masks 20%;
+    probe-face reverberation 40%; an interface parallel to the needle 30%; vessels 25%;
+    shadows 15%; diffuse shafts 30%; no reverberation tail 25%; dark bevels 25%."""
+    imaging = dict(common["imaging_overrides"])
+    imaging.update({
+        "center_frequency_mhz": float(np.exp(rng.uniform(np.log(3.0), np.log(15.0)))),
+        "tgc_compensation": _u(rng, 0.6, 1.15), "tissue_gray": _u(rng, 40, 170),
+        "compound_looks": int(rng.choice([1, 1, 2, 3])),
+    })
+    if _maybe(rng, 0.5):
+        imaging.update(gray_gamma=float(np.exp(rng.uniform(np.log(0.6), np.log(1.6)))),
+                       gray_offset=_u(rng, -15, 25), gray_white=_u(rng, 170, 255))
+    if _maybe(rng, 0.5):
+        imaging["tgc_curve_db"] = tuple(rng.normal(0.0, 4.0, int(rng.integers(3, 7))).tolist())
+    if _maybe(rng, 0.3):
+        imaging["margin_mm"] = tuple(float(rng.uniform(0.5, 6.0)) if _maybe(rng, 0.5) else 0.0
+                                     for _ in range(4))
+    if _maybe(rng, 0.2):
+        imaging.update(sector_half_angle_deg=_u(rng, 20, 50), sector_apex_mm=_u(rng, 0, 40))
+    if _maybe(rng, 0.4):
+        imaging.update(face_reverb_gain=_u(rng, 1.0, 8.0), face_reverb_spacing_mm=_u(rng, 0.6, 3),
+                       face_reverb_decay=_u(rng, 0.3, 0.75))
+    needle = dict(common["needle_overrides"])
+    needle.update({
+        "specular_width_deg": _u(rng, 5, 30), "diffuse_floor": _u(rng, 0.1, 0.6),
+        "reverb_count": 0 if _maybe(rng, 0.25) else int(rng.integers(1, 9)),
+        "shadow_factor": _u(rng, 0.1, 0.95),
+        "tip_gain": _u(rng, 0.0, 0.3) if _maybe(rng, 0.25) else _u(rng, 0.5, 5.0),
+        "diffuse_fraction": _u(rng, 0.3, 1.0) if _maybe(rng, 0.3) else 0.0,
+        "diffuse_seed": int(rng.integers(2**31)),
+    })
+    width, depth = _u(rng, 26, 50), _u(rng, 25, 60)
+    angle = _u(rng, 3, 20) if _maybe(rng, 0.4) else _u(rng, 20, 85)
+    edge = "side" if _maybe(rng, 0.35) else "top"
+    if edge == "side":
+        offset = (0.0, 2.0)
+    elif angle > 50:  # steep: the skin entry lies over the image
+        offset = (-0.6 * width, 0.0)
+    else:
+        offset = (-0.3 * width, 3.0)
+    start = _u(rng, 0.0, 30.0)
+    out = {
+        **common, "imaging_overrides": imaging, "needle_overrides": needle,
+        "gauge": int(rng.choice(sorted(k for k in synth.GAUGE_OUTER_DIAMETER_MM
+                                       if 14 <= k <= 25))),
+        "needle_echo": float(np.exp(rng.uniform(np.log(8), np.log(200)))),
+        "noise_db": _u(rng, -65, -30), "dynamic_range_db": _u(rng, 40, 80),
+        "angle_deg": angle, "speed_mm_s": _u(rng, 3, 20), "side": str(rng.choice(["right",
+                                                                                "left"])),
+        "entry_edge": edge, "entry_offset_range_mm": offset,
+        "entry_depth_range_mm": (2.0, 0.7 * depth),
+        "spacing_mm": _u(rng, 0.1, 0.3), "width_mm": width, "depth_mm": depth,
+        "start_length_mm": start, "stop_length_mm": start + 30.0,
+        "out_of_plane_deg": _u(rng, -4, 4), "elevation_offset_mm": float(rng.normal(0, 0.5)),
+        # a moving tissue is imaged afresh every frame: only in worlds cheap to image
+        "tissue_motion_mm": _u(rng, 0, 2) if _maybe(rng, 0.3) and imaging["compound_looks"] == 1
+        and imaging["center_frequency_mhz"] < 8.0 else 0.0,
+        "needle_free": _maybe(rng, 0.1),
+        "vessels": int(rng.integers(1, 3)) if _maybe(rng, 0.25) else 0,
+        "shadows": int(rng.integers(1, 3)) if _maybe(rng, 0.15) else 0,
+    }
+    if _maybe(rng, 0.3):
+        out.update(interface_offset_mm=float(rng.choice([-1, 1]) * rng.uniform(1.2, 8.0)),
+                   interface_brightness=_u(rng, 1.5, 6.0), interface_factor=_u(rng, 0.6, 1.5))
+    return out
 
 
 # Where the targets sit across the needle. A linear probe sees a needle as the bright echo of
@@ -207,11 +281,78 @@ def simplify_polyline(poly: np.ndarray, tol_mm: float) -> np.ndarray:
     return poly[keep]
 
 
+def _imaging(seq) -> synth.ImagingParams | None:
+    d = seq.meta.get("imaging") if isinstance(seq.meta, dict) else None
+    return synth.ImagingParams.from_dict(d) if d else None
+
+
+def visible_end(seq, i: int, step_mm: float = 0.05) -> np.ndarray | None:
+    """Where the visible shaft of an in-plane frame ends (probe frame, 3D), or None when no
+    tip target applies.
+
+    A centre-line point is visible where the frame shows it: inside the image and its display
+    mask, and within half the elevation beam's FWHM plus the radius of the image plane (the
+    criterion of synth's ``visible`` label). The visible shaft ends at the tip when the tip is
+    visible; where the shaft fades out of the plane inside the image, it ends there (a tip as
+    the image shows it). Where it leaves the image or the display mask, or nothing of it is
+    visible, the frame has no tip target: the end there is the edge of the view, not a tip."""
+    cl = np.asarray(seq.centerline_mm[i], float)
+    seg = np.linalg.norm(np.diff(cl, axis=0), axis=1)
+    length = float(seg.sum())
+    if length < 0.2:
+        return None
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    fine = np.arange(0.0, length + step_mm, step_mm).clip(max=length)
+    pts = np.stack([np.interp(fine, s, cl[:, k]) for k in range(3)], -1)
+    g = seq.grid()
+    xz = pts[:, [0, 2]]
+    view = g.contains(xz)
+    params = _imaging(seq)
+    if params is not None:
+        mask = synth.display_mask(g, params)
+        if mask is not None:
+            ij = np.clip(np.rint(g.points_to_index(xz)).astype(int), 0,
+                         np.asarray(g.shape) - 1)
+            view &= mask[ij[:, 0], ij[:, 1]]
+        radius = float(seq.meta.get("needle", {}).get("radius_mm", 0.5))
+        half = 0.5 * 2.3548 * params.sigma_elevation_mm(np.maximum(pts[:, 2], 0.0)) + radius
+        in_plane = np.abs(pts[:, 1]) <= half
+    else:
+        in_plane = np.ones(len(pts), bool)
+    shown = view & in_plane
+    if not shown.any():
+        return None
+    k = int(np.flatnonzero(shown)[-1])
+    if k == len(pts) - 1:
+        return pts[-1]
+    return pts[k] if view[k + 1] else None  # faded out of the plane, or left the view
+
+
+def _display_weight(seq, grid: synth.Grid, pts: np.ndarray) -> np.ndarray | None:
+    """1 where the frame's display mask shows probe-frame points ``pts`` (x, 0, z), 0 where
+    it blacks them out; None without a mask."""
+    params = _imaging(seq)
+    if params is None or seq.grid().ndim != 2:
+        return None
+    g = seq.grid()
+    mask = synth.display_mask(g, params)
+    if mask is None:
+        return None
+    ij = np.rint(g.points_to_index(pts[:, [0, 2]])).astype(int)
+    ok = np.all((ij >= 0) & (ij < np.asarray(g.shape)), axis=1)
+    w = np.zeros(len(pts), np.float32)
+    w[ok] = mask[ij[ok, 0], ij[ok, 1]]
+    return w
+
+
 def make_targets(seq, i: int, grid: synth.Grid, reference: str | None = None) -> np.ndarray:
     """(2, *grid.shape) float32 targets on ``grid`` (the network's output grid) for frame i:
     shaft = a Gaussian of the distance to the needle (sigma the radius, at least 0.3 mm),
-    tip = a Gaussian around its end. ``reference`` (default :func:`target_reference` of the
-    sequence's modality): ``"centerline"`` or ``"wall"`` (the wall facing the probe)."""
+    tip = a Gaussian around its end: for in-plane frames, where the visible shaft ends
+    (:func:`visible_end`; no tip target when it leaves the view), elsewhere the labelled tip.
+    Pixels a display mask blacks out have no target. ``reference`` (default
+    :func:`target_reference` of the sequence's modality): ``"centerline"`` or ``"wall"`` (the
+    wall facing the probe)."""
     radius = float(seq.meta.get("needle", {}).get("radius_mm", 0.5))
     reference = reference or target_reference(seq.modality)
     if reference not in ("wall", "centerline"):
@@ -229,28 +370,47 @@ def make_targets(seq, i: int, grid: synth.Grid, reference: str | None = None) ->
     if length < 0.2:  # the needle has not entered the tissue
         return out
     tip3 = np.asarray(seq.tip_3d_mm[i] if seq.tip_3d_mm is not None else seq.tip_mm[i], float)
+    if seq.modality == "inplane":
+        tip3 = visible_end(seq, i)
+        if tip3 is not None:
+            tip3 = tip3 * np.array([1.0, 0.0, 1.0])  # the end as the image shows it
+        params = _imaging(seq)
+        if params is not None:
+            # out of the plane the shaft fades as its echo does (synth's elevation weight
+            # exp(-(|y| - r)^2 / 2 sigma_e^2)), not with the target's sigma: the elevation
+            # offset beyond the radius is rescaled so the Gaussian below applies that weight
+            sig_e = params.sigma_elevation_mm(np.maximum(cl[:, 2], 0.0))
+            y = np.sign(cl[:, 1]) * np.maximum(np.abs(cl[:, 1]) - radius, 0.0)
+            cl = cl.copy()
+            cl[:, 1] = y * sigma_shaft / sig_e
     if reference == "wall":
         off = wall_offsets(cl, radius)
+        if tip3 is not None:  # the wall offset at the nearest centre-line sample
+            tip3 = tip3 + off[int(np.argmin(np.linalg.norm(cl - tip3, axis=1)))]
         cl = cl + off
-        tip3 = tip3 + off[-1]
     # targets vanish beyond 5 sigma: exact distances only for points in the needle's box
     near = np.all((pts >= cl.min(0) - 5 * sigma_shaft) & (pts <= cl.max(0) + 5 * sigma_shaft),
                   axis=1)
     d = np.full(len(pts), np.inf)
     d[near] = synth.distance_to_polyline(pts[near], simplify_polyline(cl, 1e-3))
     out[0] = np.exp(-0.5 * (d / sigma_shaft) ** 2).reshape(grid.shape)
-    dt = np.linalg.norm(pts - tip3[None], axis=1)
-    out[1] = np.exp(-0.5 * (dt / sigma_tip) ** 2).reshape(grid.shape)
+    if tip3 is not None:
+        dt = np.linalg.norm(pts - tip3[None], axis=1)
+        out[1] = np.exp(-0.5 * (dt / sigma_tip) ** 2).reshape(grid.shape)
+    if grid.ndim == 2:
+        w = _display_weight(seq, grid, pts)
+        if w is not None:
+            out *= w.reshape(grid.shape)[None]
     return out
 
 
-def prepare_frame(seq, i: int, cfg: DataConfig) -> tuple[np.ndarray, float | None]:
-    """Frame i resampled to the model's spacing, and its intensity level (``"median"``
-    normalisation; else None): computed once for the several crops of one frame."""
+def prepare_frame(seq, i: int, cfg: DataConfig):
+    """Frame i resampled to the model's spacing, and the whole frame's statistics for the
+    normalisation (:func:`frame_statistics`; None for ``"fixed"``): computed once for the
+    several crops of one frame."""
     g = seq.grid()
     img = to_model_grid(seq.images[i], g.spacing_mm, (cfg.spacing_mm,) * g.ndim)
-    norm = NORMALIZATIONS[cfg.normalization]
-    return img, (image_level(seq.images[i]) if norm["mode"] == "median" else None)
+    return img, frame_statistics(seq.images[i], NORMALIZATIONS[cfg.normalization])
 
 
 def model_output_grid(frame_grid: synth.Grid, model_shape, lo, size) -> synth.Grid:

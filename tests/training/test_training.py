@@ -422,3 +422,69 @@ def test_cli_train_param_reaches_the_recipe_and_the_model_metadata(tmp_path, cap
     assert meta["train_params"] == " ".join(params)
     net, hp = load_checkpoint(tmp_path / "run" / "model.ckpt")
     assert net.stem[0].out_channels == 12  # width=12 built the network
+
+
+def test_randomised_inplane_worlds_are_deterministic_and_wide():
+    from training.data import randomize
+
+    def world(seed):
+        name, kw = randomize("inplane", np.random.default_rng(seed))
+        kw.update(width_mm=16.0, depth_mm=16.0)  # a small frame: the same draws, faster
+        return kw, synth.generate(name, seed=seed, frames=2, **kw)
+
+    (ka, a), (kb, b) = world(11), world(11)
+    assert ka == kb
+    np.testing.assert_array_equal(a.images, b.images)
+    np.testing.assert_array_equal(a.tip_mm, b.tip_mm)
+    draws = [randomize("inplane", np.random.default_rng(s))[1] for s in range(300)]
+    assert {d["side"] for d in draws} == {"left", "right"}
+    assert {d["entry_edge"] for d in draws} == {"top", "side"}
+    angles = np.array([d["angle_deg"] for d in draws])
+    assert 3.0 <= angles.min() < 6.0 and 80.0 < angles.max() <= 85.0
+    assert {d["gauge"] for d in draws} == set(range(14, 26))
+    f0 = np.array([d["imaging_overrides"]["center_frequency_mhz"] for d in draws])
+    assert 3.0 <= f0.min() < 3.5 and 13.0 < f0.max() <= 15.0
+    dr = np.array([d["dynamic_range_db"] for d in draws])
+    assert 40.0 <= dr.min() < 43.0 and 77.0 < dr.max() <= 80.0
+    assert 0.05 < np.mean([d["needle_free"] for d in draws]) < 0.15
+
+
+def test_tip_target_marks_where_the_visible_shaft_ends():
+    from training.data import visible_end
+
+    kw = dict(frames=1, width_mm=30.0, depth_mm=30.0, angle_deg=20.0, background="homogeneous",
+              start_length_mm=25.0, gauge=18)
+    inplane = synth.generate("inplane", seed=1, **kw)
+    np.testing.assert_allclose(visible_end(inplane, 0), inplane.tip_3d_mm[0])
+    # tilted out of the plane: the shaft fades before its tip, and the target sits there
+    tilted = synth.generate("inplane", seed=1, out_of_plane_deg=6.0, **kw)
+    assert not tilted.visible[0]
+    end = visible_end(tilted, 0)
+    assert end is not None and 0.2 < abs(end[1]) < 2.0
+    assert np.linalg.norm(end - tilted.tip_3d_mm[0]) > 3.0
+    g = tilted.grid()
+    y = make_targets(tilted, 0, g)
+    peak = g.index_to_points(np.array(np.unravel_index(np.argmax(y[1]), g.shape)))
+    assert np.linalg.norm(peak - end[[0, 2]]) < 1.5  # the wall a radius above the centre
+    # the shaft leaves the image: its end there is the view's edge, not a tip
+    through = synth.generate("inplane", seed=1, **{**kw, "start_length_mm": 60.0,
+                                                   "stop_length_mm": 70.0})
+    assert not through.visible[0] and visible_end(through, 0) is None
+    y = make_targets(through, 0, through.grid())
+    assert y[1].max() < 1e-3 and y[0].max() > 0.9
+    # a needle-free world has no targets at all
+    free = synth.generate("inplane", seed=1, needle_free=True, **kw)
+    assert make_targets(free, 0, free.grid()).max() == 0.0
+
+
+def test_targets_vanish_under_a_display_mask():
+    kw = dict(seed=2, frames=1, width_mm=20, depth_mm=25, start_length_mm=18, angle_deg=40,
+              background="homogeneous")
+    plain = synth.generate("inplane", **kw)
+    masked = synth.generate("inplane", imaging_overrides={"margin_mm": (0.0, 0.0, 0.0, 6.0)},
+                            **kw)
+    g = plain.grid()
+    a, b = make_targets(plain, 0, g), make_targets(masked, 0, g)
+    right = g.axis_coords(1) > g.axis_coords(1)[-1] - 6.0
+    assert a[0][:, right].max() > 0.9 and b[0][:, right].max() == 0.0
+    np.testing.assert_array_equal(a[:, :, ~right], b[:, :, ~right])
