@@ -4,6 +4,20 @@ In fully developed speckle the envelope is Rayleigh distributed: its mean over i
 deviation is sqrt(pi / (4 - pi)) = 1.91, and its log (20 log10) has a standard deviation of
 5.57 dB. The speckle size, the full width at half maximum of the normalised autocovariance of
 the intensity, equals the FWHM of a Gaussian PSF's amplitude.
+
+Two effects move a measurement of the log-compressed image away from 5.57 dB, both physical or
+part of the display, not flaws of the speckle:
+
+- clipping to black: over 70 dB with unit speckle at grey 70, the darkest 0.7% of the speckle
+  falls below grey 0 and is clipped, which lowers the expected standard deviation to 5.45 dB
+  (the idealised check of ``needlenet bench synth`` reads 5.41; scenario frames 5.47-5.52 in 2 mm
+  depth bands away from the needle and its shadow, seeds 4 and 0; 5.57 +- 0.3 is tested);
+- the needle's acoustic shadow and reverberation tail: bands that include the tissue under the
+  needle read 6.0-6.4 dB on Mathiassen's frames, since a shadow (35% of the amplitude, -9 dB)
+  and the comet tail add their own grey-level spread to the speckle's.
+
+Compounding (``ImagingParams.compound_looks``) averages independent looks in intensity and so
+lowers the spread, to :func:`speckle_log_std_db` of the number of looks.
 """
 
 from __future__ import annotations
