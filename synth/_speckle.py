@@ -13,8 +13,10 @@ part of the display, not flaws of the speckle:
   (the idealised check of ``needlenet bench synth`` reads 5.41; scenario frames 5.47-5.52 in 2 mm
   depth bands away from the needle and its shadow, seeds 4 and 0; 5.57 +- 0.3 is tested);
 - the needle's acoustic shadow and reverberation tail: bands that include the tissue under the
-  needle read 6.0-6.4 dB on Mathiassen's frames, since a shadow (35% of the amplitude, -9 dB)
-  and the comet tail add their own grey-level spread to the speckle's.
+  needle read 5.7-6.7 dB on Mathiassen's frames (seeds 0 and 1 at 10 mm/s, pixels 1-4 mm from
+  the shaft; 6.7 mid-insertion), and 5.40-5.51 dB on the same frames without that tissue: a
+  shadow (35% of the amplitude, -9 dB) and the comet tail add their own grey-level spread to
+  the speckle's.
 
 Compounding (``ImagingParams.compound_looks``) averages independent looks in intensity and so
 lowers the spread, to :func:`speckle_log_std_db` of the number of looks.
