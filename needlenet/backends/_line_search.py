@@ -257,14 +257,18 @@ def _crossing(t: np.ndarray, prof: np.ndarray, i: int, side: int, level: float) 
 
 def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
                      thetas_rad: np.ndarray | None = None,
-                     prior: tuple[np.ndarray, np.ndarray, float] | None = None) -> NeedleLine:
+                     prior: tuple[np.ndarray, np.ndarray, float] | None = None,
+                     is_valid=None) -> NeedleLine:
     """The best needle segment on the map: Hough peaks over the pixels at or above half of
     ``level`` (the strongest ``max_points`` of them), each refined and read along its line;
     the segment with the largest evidence sum wins.
 
     ``thetas_rad``: the line directions searched (default every ``angle_step_deg`` in [0,
     pi)). ``prior``: (point, unit direction, rho half-window mm): search only lines within
-    that offset of the prior line, at the given directions."""
+    that offset of the prior line, at the given directions. ``is_valid``: a function of a
+    segment that returns '' to accept it or the reason it is no needle (scikit-image's
+    ``is_model_valid``); a rejected segment does not compete, and when every one is rejected
+    the result is false-valued with the strongest one's reason."""
     p = params
     v = wm.values
     cand = np.flatnonzero(v.ravel() >= 0.5 * level)
@@ -286,13 +290,20 @@ def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
     peaks = hough_peaks(pts, vals.astype(float), np.asarray(thetas_rad, float), p.rho_bin_mm,
                         p.peaks, window)
     best = NeedleLine(False, "no Hough peak")
+    rejected = None
     for th, rho, _ in peaks:
         fit = refine_line(pts, vals.astype(float), th, rho, p.band_mm)
         if fit is None:
             continue
         seg = line_segment(wm, fit[0], fit[1], level, p)
-        if seg and seg.score > best.score:
+        why = is_valid(seg) if seg and is_valid is not None else ""
+        if why:
+            if rejected is None or seg.score > rejected[0].score:
+                rejected = (seg, why)
+        elif seg and seg.score > best.score:
             best = seg
         elif not best and not seg:
             best = seg
+    if not best and rejected is not None:
+        return NeedleLine(False, rejected[1], profile=rejected[0].profile)
     return best

@@ -8,7 +8,10 @@ needle only when its supported segment is at least ``min_length_mm`` long with m
 or above the level that marks a needle (probability 0.5 for a learned map; for the classical
 map ``classical_level`` local standard deviations above the surrounding tissue). The tip is the
 segment's end away from the entry, refined by the tip map where the source has one, and a
-constant-velocity Kalman filter on the tip's (x, z) smooths it between frames.
+constant-velocity Kalman filter on the tip's (x, z) smooths it between frames. A segment that
+runs across the imaged region from edge to edge shows no tip (a bright tissue interface, or a
+needle whose tip has left the view, or the edge of a capture margin or sector mask) and is not
+taken for one.
 
 Which end is the tip. A needle goes in from the skin (the top of the image) or from beyond a
 side edge and goes deeper as it advances, so of a segment that descends by more than
@@ -68,7 +71,12 @@ class LineTrackerParams:
     is forgotten. ``needle_radius_mm``: maps that mark the wall facing the probe (learned
     ``target_reference = "wall"`` and the classical echo) are moved by it to the centre line
     (default 18 G). ``frame_rate_hz``: None takes the rate from the timestamps (20 Hz until two
-    frames have been seen). ``orientation_min_angle_deg``: see the module's doc."""
+    frames have been seen). ``orientation_min_angle_deg``: see the module's doc.
+    ``edge_margin_mm``: a segment whose two ends both lie this close to the edge of the imaged
+    region runs across the image and shows no tip (an interface, or a needle whose tip is out
+    of view; so is the edge of a capture margin or sector mask): no needle.
+    ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
+    not read (the mask's step is no echo)."""
 
     search: LineSearchParams = field(default_factory=LineSearchParams)
     min_length_mm: float = 5.0
@@ -89,6 +97,8 @@ class LineTrackerParams:
     needle_radius_mm: float = 0.635
     frame_rate_hz: float | None = None
     orientation_min_angle_deg: float = 5.0
+    edge_margin_mm: float = 2.0
+    mask_edge_mm: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("min_length_mm", "learned_level", "classical_level", "contrast_window_mm",
@@ -205,13 +215,50 @@ class LineTracker(Tracker):
         return self.params.learned_level if self.features.kind == "learned" else \
             self.params.classical_level
 
-    def _evidence(self, frame: Frame, shaft: np.ndarray) -> WorkingMap:
+    def _evidence(self, frame: Frame, shaft: np.ndarray, inner: np.ndarray) -> WorkingMap:
+        """The evidence map on the working grid, zero outside ``inner`` (the imaged region less
+        ``mask_edge_mm`` at the edges of capture margins and sector masks, which are steps in
+        the image, not echoes)."""
         p = self.params
         wm = working_map(shaft, frame.grid, p.search.work_spacing_mm)
-        if self.features.kind == "learned":
-            return wm
-        win = int(round(p.contrast_window_mm / wm.step))
-        return WorkingMap(line_contrast(wm.values, win), wm.x0, wm.z0, wm.step)
+        values = wm.values
+        if self.features.kind != "learned":
+            values = line_contrast(values, int(round(p.contrast_window_mm / wm.step)))
+        if not inner.all():
+            keep = cv2.resize(inner.astype(np.float32), values.shape[::-1],
+                              interpolation=cv2.INTER_AREA) > 0.5
+            values = np.where(keep, values, 0.0).astype(np.float32)
+        return WorkingMap(np.ascontiguousarray(values), wm.x0, wm.z0, wm.step)
+
+    def _inner_region(self, frame: Frame) -> np.ndarray:
+        """The imaged region less ``mask_edge_mm`` along the edges of margins and masks (the
+        frame's own border is no such edge)."""
+        valid = _imaged_region(frame)
+        if valid.all():
+            return valid
+        dz, dx = frame.grid.spacing_mm
+        kz = max(int(round(self.params.mask_edge_mm / dz)), 1)
+        kx = max(int(round(self.params.mask_edge_mm / dx)), 1)
+        padded = np.pad(valid, ((kz, kz), (kx, kx)), constant_values=True).astype(np.uint8)
+        eroded = cv2.erode(padded, np.ones((2 * kz + 1, 2 * kx + 1), np.uint8))
+        return eroded[kz:-kz, kx:-kx] > 0
+
+    def _validity(self, frame: Frame, inner: np.ndarray):
+        """The test a segment must pass to be a needle whose tip is in view: it must not run
+        across the region ``inner`` (where evidence is read) from edge to edge (both ends
+        within ``edge_margin_mm`` of its edge, outwards along the line): that is an interface,
+        a mask's edge, or a needle whose tip is out of view, and none of them gives a tip."""
+        margin = self.params.edge_margin_mm
+
+        def check(seg: NeedleLine) -> str:
+            a = _distance_to_edge(inner, frame, seg.start_mm, -seg.direction, max_mm=margin + 1)
+            b = _distance_to_edge(inner, frame, seg.end_mm, seg.direction, max_mm=margin + 1)
+            if a <= margin and b <= margin:
+                return (f"no needle tip in view: the {seg.length_mm:.0f} mm line runs across the "
+                        "image from edge to edge")
+            return ""
+
+        return check
 
     def _offset_mm(self) -> float:
         """Echo (wall facing the probe) to centre line, along the normal into the tissue."""
@@ -227,15 +274,16 @@ class LineTracker(Tracker):
             raise ValueError(f"LineTracker needs 2-D images, got a {frame.grid.ndim}-D grid")
         dt = self._update_dt(frame.t)
         lik = self.features.likelihood(frame)
-        wm = self._evidence(frame, lik.shaft)
+        inner = self._inner_region(frame)
+        wm = self._evidence(frame, lik.shaft, inner)
         if self._x is not None:
             self._x, self._P = predict(self._x, self._P, *self._motion(dt))
-        seg, new_line = self._search(wm)
+        seg, new_line = self._search(wm, self._validity(frame, inner))
         if not self._is_needle(seg):
             return self._missed(frame, seg)
         if new_line and self._dir is not None:
             self._forget()  # another line than the one tracked: start anew
-        seg = self._orient(seg, frame)
+        seg = self._orient(seg, frame, inner)
         tip_mm, used_tip_map = self._tip(seg, lik.tip, frame)
         extras = {"shaft_support": seg.support, "segment_length_mm": seg.length_mm,
                   "tip_measurement_mm": tip_mm.copy(), "tip_from_tip_map": used_tip_map}
@@ -254,7 +302,7 @@ class LineTracker(Tracker):
         Q[np.ix_([1, 3], [1, 3])] = blk
         return F, Q
 
-    def _search(self, wm: WorkingMap) -> tuple[NeedleLine, bool]:
+    def _search(self, wm: WorkingMap, is_valid) -> tuple[NeedleLine, bool]:
         """The needle segment of this frame, and whether it is another line than the one
         tracked (the track then starts anew). While tracking, the window around the last line
         is searched and so is the whole frame: a clearly stronger segment elsewhere
@@ -262,14 +310,15 @@ class LineTracker(Tracker):
         needle-like tissue line does not hold out against the needle."""
         p = self.params
         level = self._level()
-        full = find_needle_line(wm, level, p.search, self._expected_thetas())
+        full = find_needle_line(wm, level, p.search, self._expected_thetas(), is_valid=is_valid)
         if self._dir is None:
             return full, True
         th = np.arctan2(self._dir[1], self._dir[0]) % np.pi
         half = np.deg2rad(p.track_window_deg)
         thetas = th + np.linspace(-half, half, 2 * int(round(p.track_window_deg)) + 1)
         near = find_needle_line(wm, level, p.search, thetas % np.pi,
-                                prior=(self._line_point, self._dir, p.track_window_mm))
+                                prior=(self._line_point, self._dir, p.track_window_mm),
+                                is_valid=is_valid)
         if self._is_needle(near) and not (self._is_needle(full) and
                                           full.score > p.switch_ratio * near.score):
             return near, False
@@ -317,19 +366,21 @@ class LineTracker(Tracker):
         """The needle segment a whole-frame search finds on ``shaft`` (this source's shaft
         map of ``frame``), oriented entry to tip; false-valued when it sees no needle. The
         tracker's state is neither used nor changed."""
-        seg = find_needle_line(self._evidence(frame, shaft), self._level(), self.params.search,
-                               self._expected_thetas())
+        inner = self._inner_region(frame)
+        seg = find_needle_line(self._evidence(frame, shaft, inner), self._level(),
+                               self.params.search, self._expected_thetas(),
+                               is_valid=self._validity(frame, inner))
         if not self._is_needle(seg):
             return NeedleLine(False, seg.reason or "the segment is too short or too faint")
-        return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg)
+        return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, inner)
 
     # ------------------------------------------------------------------ geometry
 
-    def _orient(self, seg: NeedleLine, frame: Frame) -> NeedleLine:
+    def _orient(self, seg: NeedleLine, frame: Frame, valid: np.ndarray) -> NeedleLine:
         """The segment from its entry end to its tip end (see the module's doc)."""
         if self._dir is not None:
             return seg if float(seg.direction @ self._dir) >= 0 else seg.reversed()
-        return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg)
+        return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, valid)
 
     def _tip(self, seg: NeedleLine, tip_map, frame: Frame) -> tuple[np.ndarray, bool]:
         """The tip (x, z) on the centre line: the segment's far end, moved to the tip map's
@@ -397,14 +448,14 @@ class LineTracker(Tracker):
                     "tip_velocity_mm_s": self._x[2:].copy(), **extras})
 
 
-def _entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float) -> NeedleLine:
+def _entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float,
+                  valid: np.ndarray) -> NeedleLine:
     """``seg`` from its entry end to its tip end: the deeper end is the tip of a segment that
     descends by ``min_angle_deg`` or more; else the entry is the end nearer the edge of the
     imaged region."""
     d = seg.direction
     if abs(d[1]) >= np.sin(np.deg2rad(min_angle_deg)):
         return seg if d[1] > 0 else seg.reversed()
-    valid = _imaged_region(frame)
     a = _distance_to_edge(valid, frame, seg.start_mm, -d)
     b = _distance_to_edge(valid, frame, seg.end_mm, d)
     return seg if a <= b else seg.reversed()

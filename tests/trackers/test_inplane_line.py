@@ -139,3 +139,40 @@ def test_line_contrast_is_invariant_to_gain_and_dynamic_range():
 def test_expected_angle_is_checked():
     with pytest.raises(ValueError, match="expected_angle_deg"):
         LineTracker(expected_angle_deg=95.0)
+
+
+class _MapSource:
+    """A stand-in learned source whose shaft map is a given array."""
+
+    kind = "learned"
+    name = "map-stub"
+    target_reference = "centerline"
+
+    def __init__(self, shaft):
+        self.shaft = shaft
+
+    def likelihood(self, frame, roi=None):
+        from needlenet.features._base import Likelihood
+
+        return Likelihood(shaft=self.shaft, tip=None, source=self.name)
+
+
+@pytest.mark.parametrize("sector", [False, True])
+def test_a_line_from_edge_to_edge_shows_no_tip(sector):
+    # a bright interface across the whole image (or across a sector mask) is no needle; the
+    # same line ending inside the image is one
+    h, w = 200, 200
+    image = np.random.default_rng(5).integers(40, 120, (h, w)).astype(np.uint8)
+    if sector:  # black outside a 60-degree fan from the top centre
+        zz, xx = np.mgrid[0:h, 0:w]
+        image[np.abs(np.arctan2(xx - w / 2, zz + 1e-9)) > np.deg2rad(30)] = 0
+    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
+    for end_col, needle in ((w, False), (120, True)):
+        shaft = np.zeros((h, w), np.float32)
+        shaft[150:153, :end_col] = 0.9
+        shaft[image == 0] = 0.0
+        tr = LineTracker(features=_MapSource(shaft))
+        est = tr.update(Frame(image=image, grid=g, t=0.0))
+        assert (est.status == Status.TRACKING) == needle, est.extras.get("reason")
+        if not needle:
+            assert "edge to edge" in est.extras["reason"]
