@@ -1,0 +1,193 @@
+"""``needlenet bench external``: the default in-plane tracker on sequences that synth did not
+make (PyMUST, ``needlenet/data/external``; generator in ``needlenet.bench.external``).
+
+What a user gets from ``needlenet track FILE``: the default in-plane method with no insertion
+angle and no gauge given, with classical and with learned features. Per sequence and pooled:
+
+- tip error (mm, Euclidean) over the needle frames the tracker reports ``tracking``: median
+  and 95th percentile;
+- ``tracked_fraction``: needle frames reported ``tracking`` over needle frames;
+- ``false_tracking_fraction``: needle-free frames reported ``tracking`` over needle-free frames.
+
+A needle frame has the needle visible (label ``visible``: the tip in the image with at least
+3 mm of shaft in view); a needle-free frame has no needle in it at all (tip label NaN). The set
+is for testing only: nothing is trained or tuned on it.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+import synth
+
+__all__ = ["data_dir", "external_sequences", "frame_classes", "markdown", "run",
+           "sequence_metrics", "pooled_metrics"]
+
+QUICK_SEQUENCES = ("lin_left_top_30", "ph_interface_no_needle")
+
+
+def data_dir() -> Path:
+    """The committed set (``needlenet/data/external``)."""
+    return Path(str(resources.files("needlenet").joinpath("data", "external")))
+
+
+def external_sequences(directory: str | Path | None = None,
+                       names: tuple[str, ...] | None = None) -> list[tuple[str, synth.Sequence]]:
+    """(name, sequence) of every ``.npz`` in ``directory`` (default: the committed set), sorted
+    by name; ``names`` keeps those only."""
+    d = Path(directory) if directory is not None else data_dir()
+    files = sorted(d.glob("*.npz"))
+    if not files:
+        raise FileNotFoundError(f"no sequence files (*.npz) in {d}")
+    if names is not None:
+        files = [f for f in files if f.stem in names]
+    return [(f.stem, synth.load_sequence(f)) for f in files]
+
+
+def frame_classes(seq: synth.Sequence) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean (T,) masks: needle frames (labelled visible) and needle-free frames (no needle
+    in the frame: no tip label, or a sequence whose meta says ``needle: false``)."""
+    T = seq.n_frames
+    if seq.tip_mm is None or seq.meta.get("needle") is False:
+        return np.zeros(T, bool), np.ones(T, bool)
+    tip = np.asarray(seq.tip_mm, float)
+    absent = ~np.all(np.isfinite(tip), axis=1)
+    vis = np.zeros(T, bool) if seq.visible is None else np.asarray(seq.visible, bool)
+    return vis & ~absent, absent
+
+
+def sequence_metrics(tracking: np.ndarray, tip_est: np.ndarray, tip_true: np.ndarray,
+                     needle: np.ndarray, free: np.ndarray) -> dict:
+    """The suite's metrics of one sequence from per-frame arrays.
+
+    ``tracking`` (T,) bool: the tracker reported ``tracking``; ``tip_est`` and ``tip_true``
+    (T, 2) mm (NaN where none); ``needle`` and ``free`` (T,) bool from :func:`frame_classes`.
+    Returns the counts and the per-frame tip errors as well, so sequences can be pooled.
+    """
+    tracking = np.asarray(tracking, bool)
+    needle, free = np.asarray(needle, bool), np.asarray(free, bool)
+    tip_est = np.asarray(tip_est, float)
+    # a needle frame counts as tracked when the tracker says so and gives a tip
+    scored = needle & tracking & np.all(np.isfinite(tip_est), axis=1)
+    err = np.linalg.norm(tip_est[scored] - np.asarray(tip_true, float)[scored], axis=1)
+    return _summary(err, int(needle.sum()), int(scored.sum()), int(free.sum()),
+                    int((free & tracking).sum()))
+
+
+def pooled_metrics(per_sequence: list[dict]) -> dict:
+    """The metrics over all frames of several sequences (errors and counts pooled)."""
+    err = np.concatenate([np.asarray(m["tip_errors_mm"], float) for m in per_sequence]) \
+        if per_sequence else np.zeros(0)
+    return _summary(err, *(int(sum(m[k] for m in per_sequence)) for k in
+                           ("needle_frames", "tracked_frames", "needle_free_frames",
+                            "false_tracking_frames")))
+
+
+def _summary(err, n_needle, n_tracked, n_free, n_false) -> dict:
+    return {
+        "tip_error_median_mm": float(np.median(err)) if err.size else None,
+        "tip_error_p95_mm": float(np.percentile(err, 95)) if err.size else None,
+        "tracked_fraction": n_tracked / n_needle if n_needle else None,
+        "false_tracking_fraction": n_false / n_free if n_free else None,
+        "needle_frames": n_needle, "tracked_frames": n_tracked,
+        "needle_free_frames": n_free, "false_tracking_frames": n_false,
+        "tip_errors_mm": err.tolist(),
+    }
+
+
+def _track(seq: synth.Sequence, kind: str, seed: int):
+    from ..trackers import _registry
+
+    method = getattr(_registry, "DEFAULT_METHODS", {"inplane": "kf+f"})["inplane"]
+    tracker = _registry.make_tracker("inplane", method, kind, seed=seed)
+    return method, tracker.run(seq)
+
+
+def _describe(seq: synth.Sequence) -> dict:
+    m = seq.meta
+    return {"probe": m.get("probe"), "needle": bool(m.get("needle", True)),
+            "side": m.get("side"), "angle_deg": m.get("angle_deg"),
+            "feature": m.get("feature")}
+
+
+def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
+        directory: str | Path | None = None) -> dict:
+    """Track every sequence of the set with classical and learned features; one row per
+    sequence and features, then one pooled row per features."""
+    from ._trackers import _feature_kinds, _tier
+
+    tier = _tier(quick, tier)
+    rows = [] if rows is None else rows
+    names = QUICK_SEQUENCES if tier in ("quick", "demo") and directory is None else None
+    seqs = external_sequences(directory, names)
+    log(f"  external: {len(seqs)} sequences, {sum(s.n_frames for _, s in seqs)} frames")
+
+    traces = {}
+    for kind in _feature_kinds("inplane", log):
+        per = []
+        method = None
+        for i, (name, seq) in enumerate(seqs):
+            method, est = _track(seq, kind, seed + i)
+            needle, free = frame_classes(seq)
+            tracking = np.array([e.status.value == "tracking" for e in est])
+            tip_est = np.array([np.full(2, np.nan) if e.tip_mm is None
+                                else np.asarray(e.tip_mm, float) for e in est])
+            tip_true = np.full((seq.n_frames, 2), np.nan) if seq.tip_mm is None \
+                else np.asarray(seq.tip_mm, float)
+            m = sequence_metrics(tracking, tip_est, tip_true, needle, free)
+            per.append(m)
+            traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est}
+            lat = np.array([e.latency_ms for e in est], float)
+            row = {"suite": "external", "tracker": "inplane", "method": method,
+                   "features": kind, "sequence": name, **_describe(seq),
+                   "frames": seq.n_frames, "seed": seed + i,
+                   **{k: v for k, v in m.items() if k != "tip_errors_mm"},
+                   "latency_median_ms": float(np.median(lat))}
+            rows.append(row)
+            log(f"  external {name:28s} {kind:9s} median {_fmt(row['tip_error_median_mm'])} "
+                f"p95 {_fmt(row['tip_error_p95_mm'])} mm, tracked "
+                f"{_fmt(row['tracked_fraction'])}, false {_fmt(row['false_tracking_fraction'])}")
+        pm = pooled_metrics(per)
+        row = {"suite": "external", "tracker": "inplane", "method": method, "features": kind,
+               "sequence": "pooled", "probe": None, "needle": None, "side": None,
+               "angle_deg": None, "feature": None,
+               "frames": int(sum(s.n_frames for _, s in seqs)), "seed": seed,
+               **{k: v for k, v in pm.items() if k != "tip_errors_mm"}}
+        rows.append(row)
+        log(f"  external {'pooled':28s} {kind:9s} median {_fmt(row['tip_error_median_mm'])} "
+            f"p95 {_fmt(row['tip_error_p95_mm'])} mm, tracked {_fmt(row['tracked_fraction'])}, "
+            f"false {_fmt(row['false_tracking_fraction'])}")
+    return {"rows": rows, "traces": traces,
+            "data": str(Path(directory) if directory is not None else data_dir())}
+
+
+def _fmt(v, digits: int = 2) -> str:
+    return "-" if v is None or not np.isfinite(v) else f"{v:.{digits}f}"
+
+
+def markdown(result: dict, machine: dict) -> str:
+    lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
+             "Default in-plane tracker (no angle, no gauge given). Tip error over needle frames "
+             "reported `tracking`; tracked: needle frames reported `tracking`; false: "
+             "needle-free frames reported `tracking`.", "",
+             "| sequence | probe | needle | features | median (mm) | 95th (mm) | tracked | "
+             "false |", "|---|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        if r["sequence"] == "pooled":
+            needle = "-"
+        elif r["needle"]:
+            needle = f"{r['side']} {r['angle_deg']:g}°"
+        else:
+            needle = "none"
+        name = f"**{r['sequence']}**" if r["sequence"] == "pooled" else r["sequence"]
+        lines.append(f"| {name} | {r['probe'] or '-'} | {needle} | {r['features']} | "
+                     f"{_fmt(r['tip_error_median_mm'])} | {_fmt(r['tip_error_p95_mm'])} | "
+                     f"{_pct(r['tracked_fraction'])} | {_pct(r['false_tracking_fraction'])} |")
+    return "\n".join(lines)
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.0f}%"

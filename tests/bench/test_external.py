@@ -1,0 +1,121 @@
+"""The external in-plane set (PyMUST) and ``needlenet bench external``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import synth
+from needlenet.bench import _external as ext
+from needlenet.bench import run_suite
+
+
+@pytest.fixture(scope="module")
+def committed():
+    return ext.external_sequences()
+
+
+def test_the_committed_set_loads_and_covers_the_protocol(committed):
+    assert len(committed) >= 10
+    needle = [s for _, s in committed if s.meta["needle"]]
+    free = [s for _, s in committed if not s.meta["needle"]]
+    assert len(needle) >= 8 and len(free) >= 2
+    assert {s.meta["source"] for _, s in committed} == {"pymust"}
+    assert {s.meta["probe"] for _, s in committed} == {"L11-5v", "P4-2v"}
+    assert {s.meta["side"] for s in needle} == {"left", "right"}
+    angles = [s.meta["angle_deg"] for s in needle]
+    assert min(angles) <= 15 and max(angles) >= 60
+    assert all(10 <= a <= 70 for a in angles)
+    for _, s in committed:
+        assert s.modality == "inplane" and s.images.dtype == np.uint8
+        assert 8 <= s.n_frames <= 16
+        assert 0.1 <= s.spacing_mm[0] <= 0.15
+
+
+def test_labels_lie_inside_the_image_and_needle_free_frames_have_none(committed):
+    for name, s in committed:
+        needle, free = ext.frame_classes(s)
+        if not s.meta["needle"]:
+            assert free.all() and not s.visible.any(), name
+            assert np.isnan(s.tip_mm).all(), name
+            continue
+        assert needle.all() and not free.any(), name
+        (H, W) = s.images.shape[1:]
+        lo = np.array([s.origin_mm[1], s.origin_mm[0]])
+        hi = lo + np.array([(W - 1) * s.spacing_mm[1], (H - 1) * s.spacing_mm[0]])
+        tips = s.tip_mm[s.visible]
+        assert np.all((tips >= lo) & (tips <= hi)), name
+        # the tip lands on an imaged pixel (sector probes: inside the fan, not the black margin)
+        j = np.round((tips[:, 0] - lo[0]) / s.spacing_mm[1]).astype(int)
+        i = np.round((tips[:, 1] - lo[1]) / s.spacing_mm[0]).astype(int)
+        assert np.all(s.images.max(axis=0)[i, j] > 0), name
+        # the needle advances along its own direction, 1-2 mm per frame
+        step = np.linalg.norm(np.diff(s.tip_mm, axis=0), axis=1)
+        assert np.all((step >= 1.0 - 1e-9) & (step <= 2.0 + 1e-9)), name
+        np.testing.assert_allclose(np.linalg.norm(s.direction, axis=1), 1.0, atol=1e-9)
+
+
+def test_sequence_metrics_on_hand_made_estimates():
+    # 5 needle frames (errors 0, 1, 2 and 4 mm where tracking; frame 3 not tracked) and
+    # 4 needle-free frames, one of them reported tracking
+    true = np.array([[0, 10], [1, 10], [2, 10], [3, 10], [4, 10]] + [[np.nan, np.nan]] * 4,
+                    float)
+    est = np.array([[0, 10], [1, 11], [4, 10], [9, 9], [4, 14], [5, 5], [np.nan, np.nan],
+                    [np.nan, np.nan], [np.nan, np.nan]], float)
+    tracking = np.array([1, 1, 1, 0, 1, 1, 0, 0, 0], bool)
+    needle = np.arange(9) < 5
+    m = ext.sequence_metrics(tracking, est, true, needle, ~needle)
+    assert m["tip_errors_mm"] == [0.0, 1.0, 2.0, 4.0]
+    assert m["tip_error_median_mm"] == pytest.approx(1.5)
+    # numpy's linear percentile: 2 + 0.85 * (4 - 2)
+    assert m["tip_error_p95_mm"] == pytest.approx(3.7)
+    assert m["tracked_fraction"] == pytest.approx(4 / 5)
+    assert m["false_tracking_fraction"] == pytest.approx(1 / 4)
+    # a sequence without needle frames has no tip statistics
+    m2 = ext.sequence_metrics(np.zeros(3, bool), np.full((3, 2), np.nan),
+                              np.full((3, 2), np.nan), np.zeros(3, bool), np.ones(3, bool))
+    assert m2["tip_error_median_mm"] is None and m2["tracked_fraction"] is None
+    assert m2["false_tracking_fraction"] == 0.0
+    p = ext.pooled_metrics([m, m2])
+    assert p["tip_error_median_mm"] == pytest.approx(1.5)
+    assert p["tracked_fraction"] == pytest.approx(4 / 5)
+    assert p["false_tracking_fraction"] == pytest.approx(1 / 7)
+    assert (p["needle_frames"], p["needle_free_frames"]) == (5, 7)
+
+
+def test_a_tracking_report_without_a_tip_is_not_a_tracked_frame():
+    true = np.array([[0.0, 10.0], [1.0, 10.0]])
+    est = np.array([[0.0, 10.0], [np.nan, np.nan]])
+    m = ext.sequence_metrics(np.ones(2, bool), est, true, np.ones(2, bool), np.zeros(2, bool))
+    assert m["tracked_fraction"] == 0.5 and m["tip_errors_mm"] == [0.0]
+
+
+def test_the_suite_runs_on_a_short_sequence(committed, tmp_path):
+    name, seq = next((n, s) for n, s in committed if s.meta["needle"])
+    short = synth.Sequence(**{**seq.as_dict(), **{
+        k: getattr(seq, k)[:4] for k in ("images", "timestamps_s", "tip_mm", "entry_mm",
+                                         "direction", "visible", "centerline_mm",
+                                         "contrast_ratio")}})
+    synth.save_sequence(short, tmp_path / f"{name}.npz")
+    rows = []
+    out = ext.run(tier="quick", seed=0, log=lambda m: None, rows=rows, directory=tmp_path)
+    kinds = {r["features"] for r in rows}
+    assert "classical" in kinds
+    assert [r["sequence"] for r in rows if r["features"] == "classical"] == [name, "pooled"]
+    keys = {"sequence", "features", "method", "probe", "tip_error_median_mm", "tip_error_p95_mm",
+            "tracked_fraction", "false_tracking_fraction", "needle_frames",
+            "needle_free_frames"}
+    for r in rows:
+        assert keys <= set(r)
+        assert r["needle_frames"] == 4 and r["needle_free_frames"] == 0
+        assert 0.0 <= r["tracked_fraction"] <= 1.0
+    assert "| **pooled** |" in ext.markdown({"rows": rows}, {"cpu": "x", "cores": 2})
+    assert out["data"] == str(tmp_path)
+
+
+def test_the_suite_is_registered():
+    with pytest.raises(ValueError, match="unknown suite"):
+        run_suite("externals")
+    from needlenet.bench import HEADLINE, SUITES
+
+    assert "external" in SUITES and HEADLINE["external"] == "tip_error_p95_mm"
