@@ -3,7 +3,8 @@
 With the shipped ONNX models (no training), it simulates a few seeded sequences of each
 modality, tracks them with classical and with learned features through the same back ends
 (the ``demo`` tier of the benchmark suites: one code path with ``needlenet bench``), runs a
-short servo loop, and writes a report directory:
+short servo loop, tracks the external in-plane sequences of an independent simulator (PyMUST)
+with the default tracker, and writes a report directory:
 
 - ``report.md``: the headline comparison of every suite (learned against classical), the
   papers' tables and plots, and an overlay animation of the in-plane tracking;
@@ -20,7 +21,7 @@ import numpy as np
 
 from .bench._runner import HEADLINE, LOWER_IS_BETTER, PAPERS, run_suite
 
-DEMO_SUITES = ("inplane", "axial", "volume", "servo")
+DEMO_SUITES = ("inplane", "axial", "volume", "servo", "external")
 
 
 class _Log:

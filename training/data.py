@@ -50,6 +50,9 @@ INTENSITY_MEAN = NORMALIZATIONS["fixed"]["mean"]
 INTENSITY_STD = NORMALIZATIONS["fixed"]["std"]
 
 
+INPLANE_WORLDS = ("wide", "narrow")
+
+
 @dataclass(frozen=True)
 class DataConfig:
     modality: str = "inplane"
@@ -69,8 +72,16 @@ class DataConfig:
     zhao_fraction: float = 0.5
     cr_range: tuple[float, float] = (1.5, 5.0)
     cr_log: bool = False
+    # in-plane only: "wide" worlds (randomize_inplane: every axis a scanner or insertion
+    # varies; tip targets where the visible shaft ends) or "narrow" ones (a needle from the top
+    # right at 15-70 degrees, no display masks, tip targets at the labelled tip: the worlds the
+    # shipped in-plane model was trained on)
+    inplane_worlds: str = "wide"
 
     def __post_init__(self):
+        if self.inplane_worlds not in INPLANE_WORLDS:
+            raise ValueError(f"inplane_worlds must be one of {', '.join(INPLANE_WORLDS)}, got "
+                             f"{self.inplane_worlds!r}")
         if self.normalization not in NORMALIZATIONS:
             raise ValueError(f"normalization must be one of {', '.join(NORMALIZATIONS)}, got "
                              f"{self.normalization!r}")
@@ -129,6 +140,16 @@ def randomize(modality: str, rng: np.random.Generator,
         "needle_echo": float(np.exp(rng.uniform(np.log(12), np.log(150)))),
         "imaging_overrides": imaging, "needle_overrides": needle,
     }
+    if modality == "inplane" and cfg.inplane_worlds == "narrow":
+        start = _u(rng, 0.0, 30.0)
+        return "inplane", {
+            **common, "angle_deg": _u(rng, 15, 70), "speed_mm_s": _u(rng, 3, 20),
+            "spacing_mm": _u(rng, 0.12, 0.3), "width_mm": _u(rng, 26, 40),
+            "depth_mm": _u(rng, 28, 50), "start_length_mm": start,
+            "stop_length_mm": start + 30.0, "out_of_plane_deg": _u(rng, -3, 3),
+            "elevation_offset_mm": float(rng.normal(0, 0.7)),
+            "tissue_motion_mm": _u(rng, 0, 2) if rng.random() < 0.3 else 0.0,
+        }
     if modality == "inplane":
         return "inplane", randomize_inplane(rng, common)
     if modality == "axial":
@@ -345,11 +366,13 @@ def _display_weight(seq, grid: synth.Grid, pts: np.ndarray) -> np.ndarray | None
     return w
 
 
-def make_targets(seq, i: int, grid: synth.Grid, reference: str | None = None) -> np.ndarray:
+def make_targets(seq, i: int, grid: synth.Grid, reference: str | None = None,
+                 visible_tip: bool = True) -> np.ndarray:
     """(2, *grid.shape) float32 targets on ``grid`` (the network's output grid) for frame i:
     shaft = a Gaussian of the distance to the needle (sigma the radius, at least 0.3 mm),
-    tip = a Gaussian around its end: for in-plane frames, where the visible shaft ends
-    (:func:`visible_end`; no tip target when it leaves the view), elsewhere the labelled tip.
+    tip = a Gaussian around its end: for in-plane frames (``visible_tip``), where the visible
+    shaft ends (:func:`visible_end`; no tip target when it leaves the view), elsewhere (and for
+    the "narrow" in-plane worlds) the labelled tip.
     Pixels a display mask blacks out have no target. ``reference`` (default
     :func:`target_reference` of the sequence's modality): ``"centerline"`` or ``"wall"`` (the
     wall facing the probe)."""
@@ -370,7 +393,7 @@ def make_targets(seq, i: int, grid: synth.Grid, reference: str | None = None) ->
     if length < 0.2:  # the needle has not entered the tissue
         return out
     tip3 = np.asarray(seq.tip_3d_mm[i] if seq.tip_3d_mm is not None else seq.tip_mm[i], float)
-    if seq.modality == "inplane":
+    if seq.modality == "inplane" and visible_tip:
         tip3 = visible_end(seq, i)
         if tip3 is not None:
             tip3 = tip3 * np.array([1.0, 0.0, 1.0])  # the end as the image shows it
@@ -465,7 +488,7 @@ def sample_from_sequence(seq, i: int, cfg: DataConfig, rng: np.random.Generator 
         x = np.pad(x, [(0, int(n - m)) for n, m in zip(size, x.shape, strict=True)],
                    mode="edge")
     out_grid = model_output_grid(g, shape, lo, size)
-    y = make_targets(seq, i, out_grid)
+    y = make_targets(seq, i, out_grid, visible_tip=cfg.inplane_worlds == "wide")
     if rng is not None:
         for ax in range(1, g.ndim):  # lateral (and elevation) flips keep the physics
             if rng.random() < 0.5:

@@ -121,7 +121,7 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
 
     tier = _tier(quick, tier)
     rows = [] if rows is None else rows
-    names = QUICK_SEQUENCES if tier in ("quick", "demo") and directory is None else None
+    names = QUICK_SEQUENCES if tier == "quick" and directory is None else None
     seqs = external_sequences(directory, names)
     log(f"  external: {len(seqs)} sequences, {sum(s.n_frames for _, s in seqs)} frames")
 

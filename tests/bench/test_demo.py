@@ -12,7 +12,7 @@ def test_demo_writes_a_report_with_table_plots_and_animation(tmp_path, capsys):
     assert f"report: {out / 'report.md'}" in printed
     report = (out / "report.md").read_text()
     assert "## Headline metrics: learned against classical" in report
-    for suite in ("inplane", "axial", "volume", "servo"):
+    for suite in ("inplane", "axial", "volume", "servo", "external"):
         assert (out / suite / "results.json").exists()
         assert f"| {suite} |" in report
     assert (out / "inplane_overlay.gif").stat().st_size > 10_000

@@ -449,6 +449,25 @@ def test_randomised_inplane_worlds_are_deterministic_and_wide():
     assert 0.05 < np.mean([d["needle_free"] for d in draws]) < 0.15
 
 
+def test_the_inplane_recipe_is_the_shipped_models():
+    # the shipped in-plane model was trained on the narrow worlds with the fixed normalisation:
+    # the recipe that 'needlenet train inplane' runs must say the same
+    from needlenet.features import learned_features
+    from training.data import DataConfig, randomize
+    from training.train import DEFAULTS
+
+    data = DEFAULTS["inplane"].data
+    assert data.inplane_worlds == "narrow"
+    assert learned_features("inplane").normalization["mode"] == data.normalization
+    cfg = DataConfig(inplane_worlds="narrow")
+    draws = [randomize("inplane", np.random.default_rng(s), cfg)[1] for s in range(100)]
+    angles = np.array([d["angle_deg"] for d in draws])
+    assert 15.0 <= angles.min() and angles.max() <= 70.0
+    assert not any("side" in d for d in draws)  # the scenario's top-right entry
+    with pytest.raises(ValueError, match="inplane_worlds"):
+        DataConfig(inplane_worlds="medium")
+
+
 def test_tip_target_marks_where_the_visible_shaft_ends():
     from training.data import visible_end
 
