@@ -60,8 +60,10 @@ class LineTrackerParams:
     deviations above the tissue beside the echo (2 SD). ``contrast_window_mm``: the side of
     that map's tissue boxes. ``track_window_deg``/``track_window_mm``: while tracking,
     the line is searched within these of the last line; ``switch_ratio``: a segment elsewhere
-    replaces it when its evidence sum is this many times larger. ``tip_window_mm``: the tip map's
-    maximum is looked for this far behind and ahead of the segment's end. ``tip_map_min``:
+    replaces it when its evidence sum is this many times larger; the whole frame is searched
+    for one every ``full_search_every_frames`` frames (a quarter second at 20 frames/s).
+    ``tip_window_mm``: the tip map's maximum is looked for this far behind and ahead of the
+    segment's end. ``tip_map_min``:
     the tip map must reach this there to move the tip. ``accel_std_mm_s2``: the filter's
     white-acceleration noise (a hand or robot changing the insertion speed within a fraction
     of a second); ``measurement_std_mm``: the tip measurement's noise; ``initial_speed_std_mm_s``:
@@ -86,6 +88,7 @@ class LineTrackerParams:
     track_window_deg: float = 4.0
     track_window_mm: float = 2.0
     switch_ratio: float = 1.5
+    full_search_every_frames: int = 5
     tip_window_mm: tuple[float, float] = (2.0, 1.0)
     tip_map_min: float = 0.3
     accel_std_mm_s2: float = 40.0
@@ -108,8 +111,10 @@ class LineTrackerParams:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         if not 0.0 < self.gate_probability < 1.0:
             raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
-        if self.reinit_after_rejects < 1 or self.forget_after_frames < 1:
-            raise ValueError("reinit_after_rejects and forget_after_frames must be >= 1")
+        if min(self.reinit_after_rejects, self.forget_after_frames,
+               self.full_search_every_frames) < 1:
+            raise ValueError("reinit_after_rejects, forget_after_frames and "
+                             "full_search_every_frames must be >= 1")
         if not self.needle_radius_mm >= 0:
             raise ValueError(f"needle_radius_mm must be >= 0, got {self.needle_radius_mm}")
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
@@ -190,6 +195,7 @@ class LineTracker(Tracker):
         self._line_point: np.ndarray | None = None
         self._misses = 0
         self._rejects = 0
+        self._since_full = 0
 
     @property
     def dt_s(self) -> float:
@@ -305,24 +311,34 @@ class LineTracker(Tracker):
     def _search(self, wm: WorkingMap, is_valid) -> tuple[NeedleLine, bool]:
         """The needle segment of this frame, and whether it is another line than the one
         tracked (the track then starts anew). While tracking, the window around the last line
-        is searched and so is the whole frame: a clearly stronger segment elsewhere
+        is searched, and every ``full_search_every_frames`` frames (or when the window holds
+        no needle) the whole frame as well: a clearly stronger segment elsewhere
         (``switch_ratio`` times the evidence) takes over, so that a track started on a
         needle-like tissue line does not hold out against the needle."""
         p = self.params
         level = self._level()
-        full = find_needle_line(wm, level, p.search, self._expected_thetas(), is_valid=is_valid)
+
+        def full():
+            return find_needle_line(wm, level, p.search, self._expected_thetas(),
+                                    is_valid=is_valid)
+
         if self._dir is None:
-            return full, True
+            return full(), True
+        self._since_full += 1
         th = np.arctan2(self._dir[1], self._dir[0]) % np.pi
         half = np.deg2rad(p.track_window_deg)
         thetas = th + np.linspace(-half, half, 2 * int(round(p.track_window_deg)) + 1)
         near = find_needle_line(wm, level, p.search, thetas % np.pi,
                                 prior=(self._line_point, self._dir, p.track_window_mm),
                                 is_valid=is_valid)
-        if self._is_needle(near) and not (self._is_needle(full) and
-                                          full.score > p.switch_ratio * near.score):
+        if self._is_needle(near) and self._since_full < p.full_search_every_frames:
             return near, False
-        return full, not self._same_line(full)
+        self._since_full = 0
+        other = full()
+        if self._is_needle(near) and not (self._is_needle(other) and
+                                          other.score > p.switch_ratio * near.score):
+            return near, False
+        return other, not self._same_line(other)
 
     def _expected_thetas(self) -> np.ndarray | None:
         """Line directions within ``angle_window_deg`` of the expected insertion angle, from
