@@ -30,7 +30,7 @@ entry corner and 20-70 degree search; this tracker makes none of those assumptio
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -328,7 +328,8 @@ class LineTracker(Tracker):
         th = np.arctan2(self._dir[1], self._dir[0]) % np.pi
         half = np.deg2rad(p.track_window_deg)
         thetas = th + np.linspace(-half, half, 2 * int(round(p.track_window_deg)) + 1)
-        near = find_needle_line(wm, level, p.search, thetas % np.pi,
+        # the window around one line holds one Hough peak worth reading
+        near = find_needle_line(wm, level, replace(p.search, peaks=1), thetas % np.pi,
                                 prior=(self._line_point, self._dir, p.track_window_mm),
                                 is_valid=is_valid)
         if self._is_needle(near) and self._since_full < p.full_search_every_frames:
