@@ -22,6 +22,8 @@ import numpy as np
 from .bench._runner import HEADLINE, LOWER_IS_BETTER, PAPERS, run_suite
 
 DEMO_SUITES = ("inplane", "axial", "volume", "servo", "external")
+# what each suite measures against: a paper's protocol, or the data set
+TITLES = {**PAPERS, "external": "sequences from an independent simulator (PyMUST)"}
 
 
 class _Log:
@@ -48,7 +50,7 @@ def run_demo(out_dir: str | Path, seed: int = 0, quiet: bool = False,
     log = _Log(quiet)
     results = {}
     for i, name in enumerate(suites, 1):
-        log.step(f"({i}/{len(suites)}) {name}: {PAPERS.get(name, '')} protocol, classical and "
+        log.step(f"({i}/{len(suites)}) {name}: {TITLES.get(name, '')}, classical and "
                  f"learned features")
         results[name] = run_suite(name, tier="demo", seed=seed, log=log,
                                   report_dir=out / name, overwrite=True)
@@ -89,17 +91,17 @@ def _write(out: Path, results: dict, gif: Path | None, elapsed: float) -> Path:
             cl = _f(c["classical_best"])
             if c["classical_settings"] > 1:
                 cl += f" to {_f(c['classical_worst'])}"
-            lines.append(f"| {name} | {PAPERS.get(name, '')} | `{key}` ({better} is better) "
+            lines.append(f"| {name} | {TITLES.get(name, '')} | `{key}` ({better} is better) "
                          f"| {conf} | {cl} | {_f(c['learned'])} | {c['verdict']} |")
         if not comp:
-            lines.append(f"| {name} | {PAPERS.get(name, '')} | `{key}` | - | - | - | "
+            lines.append(f"| {name} | {TITLES.get(name, '')} | `{key}` | - | - | - | "
                          "learned features not run |")
     if gif is not None:
         lines += ["", "## In-plane tracking", "",
                   f"![in-plane overlay]({gif.name})", "",
                   "*Tracked tip (red cross) and axis against the true tip (green circle).*"]
     for name, res in results.items():
-        lines += ["", f"## {name}: {PAPERS.get(name, '')}", "", res["markdown"], ""]
+        lines += ["", f"## {name}: {TITLES.get(name, '')}", "", res["markdown"], ""]
         rep = out / name / "report.md"
         if rep.exists():
             for ln in rep.read_text().splitlines():

@@ -40,7 +40,6 @@ GROUP_BY = {
 PAPERS = {
     "inplane": "Mathiassen et al. 2017, Table III", "volume": "Zhao et al. 2013, Tables 2-3",
     "axial": "Carriere et al. 2016, Tables I-II", "servo": "Ye et al. 2025, Table 2",
-    "external": "sequences from an independent simulator (PyMUST)",
 }
 
 
