@@ -90,6 +90,17 @@ def splat(idx: np.ndarray, amp: np.ndarray, phase: np.ndarray, shape: tuple[int,
     return out
 
 
+@numba.njit(inline="always")
+def _segment_distance2(x, y, z, a, b):  # pragma: no cover - compiled
+    """Squared distance from (x, y, z) to the segment a-b."""
+    abx, aby, abz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    apx, apy, apz = x - a[0], y - a[1], z - a[2]
+    L2 = abx * abx + aby * aby + abz * abz
+    t = min(max((apx * abx + apy * aby + apz * abz) / max(L2, 1e-12), 0.0), 1.0)
+    dx, dy, dz = apx - t * abx, apy - t * aby, apz - t * abz
+    return dx * dx + dy * dy + dz * dz
+
+
 @numba.njit(cache=True, nogil=True, fastmath=True, parallel=True)
 def scattering_amplitude(p, smooth, smooth_origin, smooth_step, int_normals, int_offsets,
                          int_factors, int_bright, line_a, line_b, line_radius, line_gain,
@@ -142,19 +153,7 @@ def scattering_amplitude(p, smooth, smooth_origin, smooth_step, int_normals, int
                 a *= 1.0 + int_bright[k] * np.exp(-0.5 * (d / 0.25) ** 2)
         for k in range(line_radius.shape[0]):
             r = line_radius[k]
-            abx = line_b[k, 0] - line_a[k, 0]
-            aby = line_b[k, 1] - line_a[k, 1]
-            abz = line_b[k, 2] - line_a[k, 2]
-            apx = x - line_a[k, 0]
-            apy = y - line_a[k, 1]
-            apz = z - line_a[k, 2]
-            L2 = abx * abx + aby * aby + abz * abz
-            t = (apx * abx + apy * aby + apz * abz) / max(L2, 1e-12)
-            t = min(max(t, 0.0), 1.0)
-            dx = apx - t * abx
-            dy = apy - t * aby
-            dz = apz - t * abz
-            d2 = dx * dx + dy * dy + dz * dz
+            d2 = _segment_distance2(x, y, z, line_a[k], line_b[k])
             if d2 < 25.0 * r * r:
                 a *= 1.0 + (line_gain[k] - 1.0) * np.exp(-0.5 * d2 / (r * r))
         for k in range(cyst_radii.shape[0]):
@@ -167,19 +166,7 @@ def scattering_amplitude(p, smooth, smooth_origin, smooth_step, int_normals, int
                 a *= 1.0 - (1.0 - cyst_factor) * inside
         for k in range(tube_radius.shape[0]):  # vessels: tubes with a sharp, echogenic wall
             r = tube_radius[k]
-            abx = tube_b[k, 0] - tube_a[k, 0]
-            aby = tube_b[k, 1] - tube_a[k, 1]
-            abz = tube_b[k, 2] - tube_a[k, 2]
-            apx = x - tube_a[k, 0]
-            apy = y - tube_a[k, 1]
-            apz = z - tube_a[k, 2]
-            L2 = abx * abx + aby * aby + abz * abz
-            t = (apx * abx + apy * aby + apz * abz) / max(L2, 1e-12)
-            t = min(max(t, 0.0), 1.0)
-            dx = apx - t * abx
-            dy = apy - t * aby
-            dz = apz - t * abz
-            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            d = np.sqrt(_segment_distance2(x, y, z, tube_a[k], tube_b[k]))
             if d < r + 2.0:
                 inside = 1.0 / (1.0 + np.exp((d - r) / 0.1))
                 a *= 1.0 - (1.0 - tube_factor[k]) * inside
