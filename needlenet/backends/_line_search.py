@@ -258,7 +258,7 @@ def _crossing(t: np.ndarray, prof: np.ndarray, i: int, side: int, level: float) 
 def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
                      thetas_rad: np.ndarray | None = None,
                      prior: tuple[np.ndarray, np.ndarray, float] | None = None,
-                     is_valid=None) -> NeedleLine:
+                     is_valid=None, priority=None) -> NeedleLine:
     """The best needle segment on the map: Hough peaks over the pixels at or above half of
     ``level`` (the strongest ``max_points`` of them), each refined and read along its line;
     the segment with the largest evidence sum wins.
@@ -268,7 +268,9 @@ def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
     that offset of the prior line, at the given directions. ``is_valid``: a function of a
     segment that returns '' to accept it or the reason it is no needle (scikit-image's
     ``is_model_valid``); a rejected segment does not compete, and when every one is rejected
-    the result is false-valued with the strongest one's reason."""
+    the result is false-valued with the strongest one's reason. ``priority``: a function of a
+    segment giving a number; a segment of higher priority wins over any of lower priority,
+    and the evidence sum decides between equals."""
     p = params
     v = wm.values
     cand = np.flatnonzero(v.ravel() >= 0.5 * level)
@@ -289,6 +291,9 @@ def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
         window = (min(r0) - half, max(r0) + half)
     peaks = hough_peaks(pts, vals.astype(float), np.asarray(thetas_rad, float), p.rho_bin_mm,
                         p.peaks, window)
+    def rank(seg):
+        return (priority(seg) if priority is not None else 0, seg.score)
+
     best = NeedleLine(False, "no Hough peak")
     rejected = None
     for th, rho, _ in peaks:
@@ -300,7 +305,7 @@ def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
         if why:
             if rejected is None or seg.score > rejected[0].score:
                 rejected = (seg, why)
-        elif seg and seg.score > best.score:
+        elif seg and (not best or rank(seg) > rank(best)):
             best = seg
         elif not best and not seg:
             best = seg

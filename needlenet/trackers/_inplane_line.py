@@ -77,6 +77,8 @@ class LineTrackerParams:
     ``edge_margin_mm``: a segment whose two ends both lie this close to the edge of the imaged
     region runs across the image and shows no tip (an interface, or a needle whose tip is out
     of view; so is the edge of a capture margin or sector mask): no needle.
+    ``entry_margin_mm``: a segment with an end this close to that edge enters through it, as
+    an inserted needle does, and is preferred to one floating in the tissue.
     ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
     not read (the mask's step is no echo)."""
 
@@ -101,6 +103,7 @@ class LineTrackerParams:
     frame_rate_hz: float | None = None
     orientation_min_angle_deg: float = 5.0
     edge_margin_mm: float = 2.0
+    entry_margin_mm: float = 3.0
     mask_edge_mm: float = 1.0
 
     def __post_init__(self) -> None:
@@ -250,21 +253,39 @@ class LineTracker(Tracker):
         return eroded[kz:-kz, kx:-kx] > 0
 
     def _validity(self, frame: Frame, inner: np.ndarray):
-        """The test a segment must pass to be a needle whose tip is in view: it must not run
-        across the region ``inner`` (where evidence is read) from edge to edge (both ends
-        within ``edge_margin_mm`` of its edge, outwards along the line): that is an interface,
-        a mask's edge, or a needle whose tip is out of view, and none of them gives a tip."""
-        margin = self.params.edge_margin_mm
+        """Two functions of a segment, from the distances of its ends to the edge of the region
+        ``inner`` (where evidence is read), outwards along the line:
+
+        - the test it must pass to be a needle whose tip is in view: it must not run across
+          the region from edge to edge (both ends within ``edge_margin_mm``): that is an
+          interface, a mask's edge, or a needle whose tip is out of view;
+        - its priority: 1 when one end lies within ``entry_margin_mm`` of the edge (the needle
+          comes in through the skin or the side of the view, as an insertion's does), else 0
+          (a segment floating in the tissue: a tissue line, or a needle partly out of plane).
+        """
+        p = self.params
+        reach = max(p.edge_margin_mm, p.entry_margin_mm) + 1.0
+        cache: dict = {}
+
+        def ends(seg: NeedleLine) -> tuple[float, float]:
+            key = (*seg.start_mm, *seg.end_mm)
+            if key not in cache:
+                cache[key] = (
+                    _distance_to_edge(inner, frame, seg.start_mm, -seg.direction, max_mm=reach),
+                    _distance_to_edge(inner, frame, seg.end_mm, seg.direction, max_mm=reach))
+            return cache[key]
 
         def check(seg: NeedleLine) -> str:
-            a = _distance_to_edge(inner, frame, seg.start_mm, -seg.direction, max_mm=margin + 1)
-            b = _distance_to_edge(inner, frame, seg.end_mm, seg.direction, max_mm=margin + 1)
-            if a <= margin and b <= margin:
+            a, b = ends(seg)
+            if a <= p.edge_margin_mm and b <= p.edge_margin_mm:
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line runs across the "
                         "image from edge to edge")
             return ""
 
-        return check
+        def priority(seg: NeedleLine) -> int:
+            return int(min(ends(seg)) <= p.entry_margin_mm)
+
+        return check, priority
 
     def _offset_mm(self) -> float:
         """Echo (wall facing the probe) to centre line, along the normal into the tissue."""
@@ -284,7 +305,7 @@ class LineTracker(Tracker):
         wm = self._evidence(frame, lik.shaft, inner)
         if self._x is not None:
             self._x, self._P = predict(self._x, self._P, *self._motion(dt))
-        seg, new_line = self._search(wm, self._validity(frame, inner))
+        seg, new_line = self._search(wm, *self._validity(frame, inner))
         if not self._is_needle(seg):
             return self._missed(frame, seg)
         if new_line and self._dir is not None:
@@ -308,19 +329,20 @@ class LineTracker(Tracker):
         Q[np.ix_([1, 3], [1, 3])] = blk
         return F, Q
 
-    def _search(self, wm: WorkingMap, is_valid) -> tuple[NeedleLine, bool]:
+    def _search(self, wm: WorkingMap, is_valid, priority) -> tuple[NeedleLine, bool]:
         """The needle segment of this frame, and whether it is another line than the one
         tracked (the track then starts anew). While tracking, the window around the last line
         is searched, and every ``full_search_every_frames`` frames (or when the window holds
         no needle) the whole frame as well: a clearly stronger segment elsewhere
         (``switch_ratio`` times the evidence) takes over, so that a track started on a
-        needle-like tissue line does not hold out against the needle."""
+        needle-like tissue line does not hold out against the needle; so does a segment of
+        higher priority (one that enters through the edge of the view)."""
         p = self.params
         level = self._level()
 
         def full():
             return find_needle_line(wm, level, p.search, self._expected_thetas(),
-                                    is_valid=is_valid)
+                                    is_valid=is_valid, priority=priority)
 
         if self._dir is None:
             return full(), True
@@ -336,8 +358,9 @@ class LineTracker(Tracker):
             return near, False
         self._since_full = 0
         other = full()
-        if self._is_needle(near) and not (self._is_needle(other) and
-                                          other.score > p.switch_ratio * near.score):
+        if self._is_needle(near) and not (self._is_needle(other) and (
+                priority(other) > priority(near) or (priority(other) == priority(near) and
+                                                     other.score > p.switch_ratio * near.score))):
             return near, False
         return other, not self._same_line(other)
 
@@ -384,9 +407,10 @@ class LineTracker(Tracker):
         map of ``frame``), oriented entry to tip; false-valued when it sees no needle. The
         tracker's state is neither used nor changed."""
         inner = self._inner_region(frame)
+        is_valid, priority = self._validity(frame, inner)
         seg = find_needle_line(self._evidence(frame, shaft, inner), self._level(),
                                self.params.search, self._expected_thetas(),
-                               is_valid=self._validity(frame, inner))
+                               is_valid=is_valid, priority=priority)
         if not self._is_needle(seg):
             return NeedleLine(False, seg.reason or "the segment is too short or too faint")
         return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, inner)
