@@ -109,9 +109,8 @@ class InplaneParams:
     on which the needle is not seen reports ``lost`` without a tip while the filters predict
     through it; after ``lost_after_frames`` such frames the track is forgotten.
     ``entry_side``: the paper's needle enters at the top right; ``"left"`` mirrors every frame
-    (and the estimates back) for a needle from the left, and ``"auto"`` mirrors when the
-    whole-frame line search of :class:`~._inplane_line.LineTracker` sees the needle's tip left
-    of its entry, deciding again at each detection.
+    (and the estimates back) for a needle from the left, and ``"auto"`` detects on both and
+    keeps the side where the needle stands out more, deciding again at each detection.
     """
 
     axis: MathiassenParams = field(default_factory=MathiassenParams)
@@ -217,7 +216,6 @@ class InplaneTracker(Tracker):
         self._last_t: float | None = None
         self._dt: float | None = None
         self._mirrored = self.params.entry_side == "left"
-        self._side_finder = None
 
     # ------------------------------------------------------------------ state
 
@@ -274,11 +272,19 @@ class InplaneTracker(Tracker):
     def _detect_either_side(self, frame, shaft, previous, tip_map) -> NeedleEstimate:
         """Detection on the side ``entry_side`` names; with ``"auto"`` on both (the frames as
         they are and mirrored), keeping the side whose needle has the larger shaft contrast
-        (the paper's own detection measure)."""
+        (the paper's own detection measure; for DF, the larger Hough value)."""
         side = self.params.entry_side
-        if side != "auto" or self.method == "df":
-            if side == "auto":  # DF's Hough search: the side of the whole-frame segment
-                self._mirrored = self._left_by_line_search(frame, shaft, self._mirrored)
+        if side != "auto":
+            return self._detect(frame, *self._oriented(shaft, previous, tip_map))
+        if self.method == "df":  # DF's own measure: the Hough votes of its axis
+            votes = []
+            centre = self.expected_angle_deg if self.expected_angle_deg is not None else \
+                self._theta_ref
+            for mirrored in (False, True):
+                self._mirrored = mirrored
+                res = ding_fenster(self._oriented(shaft)[0], frame.grid, centre, self.params.df)
+                votes.append(res.votes if res else -1)
+            self._mirrored = bool(np.argmax(votes))
             return self._detect(frame, *self._oriented(shaft, previous, tip_map))
         found = []
         for mirrored in (False, True):
@@ -292,16 +298,6 @@ class InplaneTracker(Tracker):
         self._mirrored = bool(best)
         return self._commit_detection(frame, *self._oriented(shaft, previous, tip_map),
                                       found[best])
-
-    def _left_by_line_search(self, frame, shaft, default: bool) -> bool:
-        """Whether the whole-frame line search sees a needle whose tip lies left of its
-        entry (``default`` when it sees none)."""
-        if self._side_finder is None:
-            from ._inplane_line import LineTracker
-
-            self._side_finder = LineTracker(features=self.features)
-        seg = self._side_finder.segment(frame, shaft)
-        return default if not seg else bool(seg.direction[0] > 0)
 
     def _update_dt(self, t: float) -> None:
         if self.params.frame_rate_hz is not None:
