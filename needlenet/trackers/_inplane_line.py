@@ -402,19 +402,6 @@ class LineTracker(Tracker):
         status = Status.LOST if had or self.status == Status.TRACKING else Status.SEARCHING
         return NeedleEstimate(t=frame.t, status=status, extras={"reason": reason})
 
-    def segment(self, frame: Frame, shaft: np.ndarray) -> NeedleLine:
-        """The needle segment a whole-frame search finds on ``shaft`` (this source's shaft
-        map of ``frame``), oriented entry to tip; false-valued when it sees no needle. The
-        tracker's state is neither used nor changed."""
-        inner = self._inner_region(frame)
-        is_valid, priority = self._validity(frame, inner)
-        seg = find_needle_line(self._evidence(frame, shaft, inner), self._level(),
-                               self.params.search, self._expected_thetas(),
-                               is_valid=is_valid, priority=priority)
-        if not self._is_needle(seg):
-            return NeedleLine(False, seg.reason or "the segment is too short or too faint")
-        return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, inner)
-
     # ------------------------------------------------------------------ geometry
 
     def _orient(self, seg: NeedleLine, frame: Frame, valid: np.ndarray) -> NeedleLine:
