@@ -1,0 +1,108 @@
+"""The external set's sequences: the probes and one spec per sequence (fixed seeds)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["PROBES", "SPECS", "ProbeSetup", "SequenceSpec"]
+
+
+@dataclass(frozen=True)
+class ProbeSetup:
+    """A PyMUST probe, its transmits and the image it makes."""
+
+    model: str  # pymust.getparam name
+    tilts_deg: tuple[float, ...]  # steering of the compounded transmits
+    diverging_width_deg: float | None  # angular width of diverging waves; None: plane waves
+    spacing_mm: float  # output pixel size, both axes
+    x_range_mm: tuple[float, float]  # lateral extent of the output image
+    z_range_mm: tuple[float, float]  # depth extent of the output image
+    sector_half_angle_deg: float | None  # sector probes: half opening of the scan-converted fan
+    polar_step_deg: float = 0.4  # sector probes: angle between beamformed lines
+    margin_mm: float = 1.0  # scatterers extend this far beyond the image
+    element_splitting: int | None = None  # simus ElementSplitting; None: PyMUST's rule
+    attenuation_db_cm_mhz: float = 0.5
+    db_thresh: float = -40.0  # simus keeps the frequencies of the spectrum above this level
+    scatterers_per_cell: float = 10.0  # per -6 dB resolution cell, measured on a point target
+
+
+PROBES = {
+    # 128 elements, 7.6 MHz, 0.3 mm pitch; three plane waves compounded. The 0.27 mm elements
+    # are in their far field (w^2 / lambda = 0.36 mm) at every simulated depth, so simus need
+    # not split them.
+    "L11-5v": ProbeSetup("L11-5v", (-5.0, 0.0, 5.0), None, 0.10, (-12.5, 12.5), (1.0, 31.0),
+                         None, element_splitting=1),
+    # 64 elements, 2.7 MHz; three diverging waves, beamformed on a polar grid and scan-converted
+    "P4-2v": ProbeSetup("P4-2v", (-10.0, 0.0, 10.0), 75.0, 0.15, (-26.25, 26.25), (0.0, 45.0),
+                        35.0),
+}
+
+
+@dataclass(frozen=True)
+class SequenceSpec:
+    """One sequence of the set. Lines are given by a point and a slope (degrees from +x towards
+    +z: positive descends to the right)."""
+
+    name: str
+    probe: str  # key of PROBES
+    seed: int
+    needle: bool = True
+    side: str = "left"  # the needle comes from the left (travels to +x) or from the right
+    entry_x_mm: float = 0.0  # where the needle axis crosses the skin line z = 0
+    angle_deg: float = 30.0  # angle between needle and skin
+    start_mm: float = 10.0  # inserted length (from the skin line) at frame 0
+    step_mm: float = 1.5  # insertion per frame
+    n_frames: int = 14
+    frame_rate_hz: float = 20.0
+    gauge: int = 18
+    target_cr: float = 2.5  # needle-to-tissue contrast on the last frame (see _local_contrast)
+    roughness: float = 1.5  # sd of the wall scatterers' random amplitude around the coherent 1
+    bevel_gain: float = 2.0  # sd of the bevel scatterers' (random) amplitude over roughness
+    bevel_length_mm: float = 1.5
+    reverb_gain: float = 0.35  # amplitude ratio of successive reverberation copies
+    n_reverb: int = 3
+    interface: tuple[float, float, float] | None = None  # (x_mm, z_mm, slope_deg)
+    interface_cr: float = 2.5  # interface-to-tissue contrast, as the needle's
+    vessel: tuple[float, float, float] | None = None  # (x_mm, z_mm, radius_mm), anechoic
+    inhomogeneity: float = 0.25  # sd of the log echogenicity (smooth, ~4 mm correlation)
+    snr_db: float = 40.0  # tissue RF rms over electronic noise rms, per channel
+    dynamic_range_db: float = 55.0
+    gamma: float = 1.0  # grey map: grey = 255 * ((dB + DR) / DR) ** gamma
+    tissue_grey: float = 85.0  # mean grey of the tissue, set by the display gain
+    feature: str = "plain"  # a word for the README table
+
+
+SPECS = (
+    SequenceSpec("lin_left_top_30", "L11-5v", 101, side="left", entry_x_mm=-10.0, angle_deg=30,
+                 start_mm=7.0, step_mm=1.3, target_cr=2.6, dynamic_range_db=55, tissue_grey=85),
+    SequenceSpec("lin_right_side_12", "L11-5v", 102, side="right", entry_x_mm=40.0,
+                 angle_deg=12, start_mm=33.0, step_mm=1.5, target_cr=2.8, gauge=20,
+                 dynamic_range_db=60, gamma=1.2, tissue_grey=70, feature="shallow"),
+    SequenceSpec("lin_left_side_22_faint", "L11-5v", 103, side="left", entry_x_mm=-25.0,
+                 angle_deg=22, start_mm=18.0, step_mm=1.4, target_cr=1.9, gauge=21,
+                 dynamic_range_db=50, gamma=0.9, tissue_grey=95, feature="faint"),
+    SequenceSpec("lin_right_top_40_interface", "L11-5v", 104, side="right", entry_x_mm=11.0,
+                 angle_deg=40, start_mm=5.0, step_mm=1.2, target_cr=2.6, gauge=18,
+                 interface=(0.0, 13.0, -40.0), interface_cr=2.2, dynamic_range_db=55,
+                 tissue_grey=80, feature="bright interface 2.9 mm below, parallel"),
+    SequenceSpec("lin_vessel_no_needle", "L11-5v", 105, needle=False,
+                 interface=(0.0, 7.0, 8.0), interface_cr=2.4, vessel=(3.0, 19.0, 3.0),
+                 dynamic_range_db=55, tissue_grey=85, feature="no needle; vessel, interface"),
+    SequenceSpec("ph_right_side_45_vessel", "P4-2v", 201, side="right", entry_x_mm=26.0,
+                 angle_deg=45, start_mm=25.6, step_mm=1.5, target_cr=2.6, gauge=18,
+                 vessel=(-0.2, 26.2, 3.5), dynamic_range_db=55, tissue_grey=85,
+                 feature="crosses a vessel"),
+    SequenceSpec("ph_left_side_65_steep", "P4-2v", 202, side="left", entry_x_mm=-14.0,
+                 angle_deg=65, start_mm=17.0, step_mm=1.5, target_cr=2.8, gauge=18,
+                 dynamic_range_db=60, gamma=1.1, tissue_grey=75, feature="steep"),
+    SequenceSpec("ph_left_side_35_interface", "P4-2v", 203, side="left", entry_x_mm=-30.0,
+                 angle_deg=35, start_mm=30.0, step_mm=1.8, target_cr=2.4, gauge=17,
+                 interface=(0.0, 25.0, 35.0), interface_cr=2.2, dynamic_range_db=50,
+                 gamma=0.9, tissue_grey=90, feature="bright interface 3.3 mm below, parallel"),
+    SequenceSpec("ph_right_side_55", "P4-2v", 204, side="right", entry_x_mm=22.0, angle_deg=55,
+                 start_mm=23.0, step_mm=2.0, target_cr=2.8, gauge=16, dynamic_range_db=55,
+                 tissue_grey=80, feature="plain"),
+    SequenceSpec("ph_interface_no_needle", "P4-2v", 205, needle=False,
+                 interface=(0.0, 22.0, -20.0), interface_cr=2.4, vessel=(6.0, 34.0, 3.5),
+                 dynamic_range_db=55, tissue_grey=85, feature="no needle; interface, vessel"),
+)
