@@ -73,8 +73,7 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None) -> 
     tr = []
     vm_kinds = image_kinds
     vm_runs = ("misalignment",) if tier == "demo" else ("misalignment", "motion")
-    # several seeded worlds in the full run: one seed decides little (the learned motion run
-    # lost the needle on 4 of seeds 0-6 in session 7, classical on 1)
+    # several seeded worlds in the full run: one seed decides little (docs/notes/servo.md)
     vm_repeats = CHATELAIN_REPEATS if tier == "full" else 1
     add(servo_rows("volume-motion", features=vm_kinds, runs=vm_runs, repeats=vm_repeats,
                    seed=seed, quick=short, progress=progress, traces=tr), "volume-motion")

@@ -220,7 +220,7 @@ def _chatelain_row(runs: list[dict], features: str, run: str, seed: int) -> dict
 
 
 # A Chatelain run whose P-hat RMSE exceeds this has lost the needle: the working runs reach
-# 0.3-0.7 mm, the lost ones 7-40 mm (seeds 0-6, session 8).
+# 0.3-0.7 mm, the lost ones 7-40 mm (seeds 0-6; docs/notes/servo.md).
 LOST_RMSE_MM = 2.0
 
 

@@ -1,4 +1,4 @@
-"""``needlenet servo``: the probe-servo loop from the command line (issue 5)."""
+"""``needlenet servo``: the probe-servo loop from the command line."""
 
 from __future__ import annotations
 
