@@ -257,15 +257,15 @@ def _crossing(t: np.ndarray, prof: np.ndarray, i: int, side: int, level: float) 
 
 def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
                      thetas_rad: np.ndarray | None = None,
-                     prior: tuple[np.ndarray, np.ndarray, float] | None = None,
+                     prior: tuple[np.ndarray, float] | None = None,
                      is_valid=None, priority=None) -> NeedleLine:
     """The best needle segment on the map: Hough peaks over the pixels at or above half of
     ``level`` (the strongest ``max_points`` of them), each refined and read along its line;
     the segment with the largest evidence sum wins.
 
     ``thetas_rad``: the line directions searched (default every ``angle_step_deg`` in [0,
-    pi)). ``prior``: (point, unit direction, rho half-window mm): search only lines within
-    that offset of the prior line, at the given directions. ``is_valid``: a function of a
+    pi)). ``prior``: (point, rho half-window mm): search only lines within that offset of
+    the point, at the given directions. ``is_valid``: a function of a
     segment that returns '' to accept it or the reason it is no needle (scikit-image's
     ``is_model_valid``); a rejected segment does not compete, and when every one is rejected
     the result is false-valued with the strongest one's reason. ``priority``: a function of a
@@ -286,9 +286,9 @@ def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
         thetas_rad = np.deg2rad(np.arange(0.0, 180.0, p.angle_step_deg))
     window = None
     if prior is not None:
-        c0, d0, half = prior
-        r0 = [float(c0 @ _normal(np.asarray(th))) for th in thetas_rad]
-        window = (min(r0) - half, max(r0) + half)
+        c0, half = prior
+        r0 = np.asarray(c0, float) @ _normal(np.asarray(thetas_rad, float)).T
+        window = (float(r0.min()) - half, float(r0.max()) + half)
     peaks = hough_peaks(pts, vals.astype(float), np.asarray(thetas_rad, float), p.rho_bin_mm,
                         p.peaks, window)
     def rank(seg):

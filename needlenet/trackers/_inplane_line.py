@@ -352,7 +352,7 @@ class LineTracker(Tracker):
         thetas = th + np.linspace(-half, half, 2 * int(round(p.track_window_deg)) + 1)
         # the window around one line holds one Hough peak worth reading
         near = find_needle_line(wm, level, replace(p.search, peaks=1), thetas % np.pi,
-                                prior=(self._line_point, self._dir, p.track_window_mm),
+                                prior=(self._line_point, p.track_window_mm),
                                 is_valid=is_valid)
         if self._is_needle(near) and self._since_full < p.full_search_every_frames:
             return near, False
