@@ -8,9 +8,11 @@ file"). :func:`validate_sequence` checks every key's presence, dtype and shape a
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -179,6 +181,29 @@ def save_sequence(seq: Sequence, path: str | os.PathLike, overwrite: bool = Fals
     return path
 
 
+def _check_member(zf: zipfile.ZipFile, key: str, src: str) -> None:
+    """The array header of ``key`` must parse and describe exactly the bytes the archive
+    holds for it, so a damaged or forged header is an error before anything is allocated."""
+    try:
+        info = zf.getinfo(f"{key}.npy")
+        with zf.open(info) as fh:
+            version = np.lib.format.read_magic(fh)
+            if version == (1, 0):
+                shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+            else:
+                shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+            header_len = fh.tell()
+    except Exception as exc:  # a damaged header raises whatever its parser meets
+        raise _err(src, key, f"has a damaged array header ({type(exc).__name__}: {exc})"
+                   ) from None
+    if dtype.hasobject:
+        raise _err(src, key, "holds Python objects; a sequence file holds plain arrays")
+    need = math.prod(int(n) for n in shape) * dtype.itemsize
+    if need != info.file_size - header_len:
+        raise _err(src, key, f"its header describes {shape} {dtype} ({need} bytes) but the "
+                   f"file holds {info.file_size - header_len} bytes for it")
+
+
 def load_sequence(path: str | os.PathLike) -> Sequence:
     """Read and validate a sequence file; a bad file raises :class:`SequenceFileError`."""
     path = Path(path)
@@ -198,9 +223,11 @@ def load_sequence(path: str | os.PathLike) -> Sequence:
         for k in REQUIRED + OPTIONAL:
             if k not in files:
                 continue
+            _check_member(data.zip, k, src)
             try:
                 kw[k] = data[k]
-            except (ValueError, zipfile.BadZipFile, OSError, EOFError) as exc:
+            except (ValueError, zipfile.BadZipFile, OSError, EOFError, zlib.error,
+                    MemoryError) as exc:
                 raise _err(src, k, f"cannot be read ({exc})") from None
     try:
         kw["modality"] = str(kw["modality"][()])

@@ -139,9 +139,10 @@ def read_image_folder(path: str | os.PathLike) -> np.ndarray:
     return np.stack(frames)
 
 
-def read_video(path: str | os.PathLike) -> tuple[np.ndarray, float | None]:
-    """Every frame of a video (OpenCV ``VideoCapture``) as uint8 gray ``(T, H, W)``, and the
-    container's frame rate (None when it does not say)."""
+def read_video(path: str | os.PathLike) -> tuple[np.ndarray, float | None, list[str]]:
+    """Every frame of a video (OpenCV ``VideoCapture``) as uint8 gray ``(T, H, W)``, the
+    container's frame rate (None when it does not say), and notes for the user (fewer frames
+    decoded than the container announces: a truncated or damaged file)."""
     import cv2
 
     src = str(path)
@@ -151,6 +152,7 @@ def read_video(path: str | os.PathLike) -> tuple[np.ndarray, float | None]:
             raise RecordingError(f"{src}: OpenCV cannot open this video (damaged file, or a "
                                  "codec it lacks)")
         fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        announced = float(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0.0)
         frames = []
         while True:
             ok, img = cap.read()
@@ -164,4 +166,8 @@ def read_video(path: str | os.PathLike) -> tuple[np.ndarray, float | None]:
         cap.release()
     if not frames:
         raise RecordingError(f"{src}: no frames could be decoded")
-    return np.stack(frames), (fps if np.isfinite(fps) and fps > 0 else None)
+    notes = []
+    if np.isfinite(announced) and announced > len(frames):
+        notes.append(f"{src}: decoded {len(frames)} of the {int(announced)} frames the "
+                     "container announces; the file may be truncated or damaged")
+    return np.stack(frames), (fps if np.isfinite(fps) and fps > 0 else None), notes

@@ -47,6 +47,7 @@ import numpy as np
 
 from ._atomic import atomic_write
 from ._errors import RecordingError
+from ._limits import check_allocation
 
 __all__ = ["PlusSequence", "read_plus", "write_plus", "plus_outputs", "ORIENTATIONS",
            "PLUS_SUFFIXES"]
@@ -61,6 +62,7 @@ _ELEMENT_TYPES = {
 }
 _FRAME_FIELD = re.compile(r"^Seq_Frame(\d+)_(\w+)$")
 _MAX_LINE = 1 << 22  # a header line longer than this is not a header
+_MAX_INFLATION = 1032  # deflate inflates at most ~1032:1 (a 258-byte match costs >= 2 bits)
 
 
 @dataclass
@@ -88,6 +90,7 @@ class PlusSequence:
     fields: dict[str, str] = field(default_factory=dict)
     orientation: str = "MF"
     intensity_range: tuple[float, float] | None = None  # set when non-uint8 pixels were scaled
+    notes: list[str] = field(default_factory=list)  # what reading changed, for the user
 
     @property
     def n_frames(self) -> int:
@@ -174,12 +177,21 @@ def _pixel_bytes(path: Path, src: str, header: dict, offset: int, nbytes: int,
         if compressed:
             csize = int(_numbers(header, "CompressedDataSize", src, 1, int)[0]) \
                 if "CompressedDataSize" in header else None
+            if csize is not None and csize < 1:
+                raise RecordingError(f"{src}: CompressedDataSize = {csize} must be positive")
             start = skip if skip >= 0 else size - (csize or 0)
             avail = size - start
             if csize is not None and avail < csize:
                 raise RecordingError(
                     f"{tsrc}: truncated: CompressedDataSize = {csize} but only {avail} bytes "
                     "of pixel data follow the header")
+            if start < 0 or avail < 1:
+                raise RecordingError(f"{tsrc}: no compressed pixel data after the header")
+            if nbytes > _MAX_INFLATION * (csize if csize is not None else avail) + 1024:
+                raise RecordingError(
+                    f"{tsrc}: DimSize/ElementType need {nbytes} bytes of pixels, more than "
+                    f"zlib can inflate from the {csize or avail} compressed bytes given; "
+                    "damaged header?")
             fh.seek(start)
             blob = fh.read(csize if csize is not None else avail)
             try:
@@ -207,22 +219,48 @@ def _pixel_bytes(path: Path, src: str, header: dict, offset: int, nbytes: int,
         return fh.read(nbytes)
 
 
-def _to_gray_uint8(arr: np.ndarray, channels: int) -> tuple[np.ndarray, tuple | None]:
-    """Colour to gray (ITU-R BT.601 luma of R, G, B), other types scaled to 0..255."""
+def _to_gray_uint8(arr: np.ndarray, channels: int) -> tuple[np.ndarray, tuple | None, list]:
+    """Colour to gray (ITU-R BT.601 luma of R, G, B), other types scaled to 0..255; returns
+    (frames, the scaled intensity range or None, notes for the user).
+
+    Scaling maps the finite range to 0..255, except that values further beyond the 0.01-99.99
+    percentile range than that range is wide (a dead or hot pixel, a 1e6 in float data) are
+    clipped instead of compressing every frame to black; pixels that are not finite are shown
+    black. Either is reported in the notes."""
+    notes: list[str] = []
     if channels >= 3:
         a = arr[..., :3].astype(np.float32)
         arr = a[..., 0] * 0.299 + a[..., 1] * 0.587 + a[..., 2] * 0.114
         if arr.size and float(arr.max()) <= 255.0 and float(arr.min()) >= 0.0:
-            return np.clip(np.rint(arr), 0, 255).astype(np.uint8), None
+            return np.clip(np.rint(arr), 0, 255).astype(np.uint8), None, notes
     elif channels == 2:
         arr = arr[..., 0]
     if arr.dtype == np.uint8:
-        return np.ascontiguousarray(arr), None
+        return np.ascontiguousarray(arr), None, notes
     a = arr.astype(np.float64)
-    lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
+    finite = np.isfinite(a)
+    if not finite.all():
+        bad = ~finite
+        frames = np.flatnonzero(bad.reshape(len(a), -1).any(axis=1))
+        notes.append(f"{int(bad.sum())} pixels in {len(frames)} frames (first: frame "
+                     f"{int(frames[0])}) are not finite numbers; they are shown black")
+    vals = a[finite]
+    if not vals.size:
+        return np.zeros(a.shape, np.uint8), (0.0, 0.0), notes
+    lo, hi = float(vals.min()), float(vals.max())
+    p_lo, p_hi = (float(v) for v in np.percentile(vals, [0.01, 99.99]))
+    width = p_hi - p_lo
+    if width > 0 and (hi - p_hi > width or p_lo - lo > width):
+        inlier = (vals >= p_lo - width) & (vals <= p_hi + width)
+        lo, hi = float(vals[inlier].min()), float(vals[inlier].max())
+        notes.append(f"{int(vals.size - inlier.sum())} pixels lie far outside the "
+                     f"recording's intensity range ({lo:.6g} to {hi:.6g}); they are clipped "
+                     "to it")
+    a = np.where(finite, a, lo)
     if hi <= lo:
-        return np.zeros(a.shape, np.uint8), (lo, hi)
-    return np.rint((a - lo) * (255.0 / (hi - lo))).astype(np.uint8), (lo, hi)
+        return np.zeros(a.shape, np.uint8), (lo, hi), notes
+    return np.rint((np.clip(a, lo, hi) - lo) * (255.0 / (hi - lo))).astype(np.uint8), (lo, hi), \
+        notes
 
 
 def _orient(images: np.ndarray, code: str, volume: bool, src: str) -> np.ndarray:
@@ -289,10 +327,10 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
         raise RecordingError(f"{src}: BinaryData = False (pixels as text) is not supported")
     compressed = _flag(header, "CompressedData", src)
     shape = (T, *[int(d) for d in dims_sp[::-1]]) + ((channels,) if channels > 1 else ())
-    nbytes = int(np.prod(shape)) * dtype.itemsize
+    nbytes = check_allocation(shape, dtype.itemsize, src, "DimSize/ElementType")
     blob = _pixel_bytes(path, src, header, offset, nbytes, compressed)
     arr = np.frombuffer(blob, dtype=dtype).reshape(shape)
-    images, irange = _to_gray_uint8(arr, channels)
+    images, irange, notes = _to_gray_uint8(arr, channels)
 
     frames: dict[str, list] = {}
     for key, value in header.items():
@@ -371,7 +409,8 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
     return PlusSequence(images=images, spacing_mm=spacing, origin_mm=origin,
                         timestamps_s=timestamps, transforms=transforms, transform_ok=ok,
                         image_ok=image_ok, frame_fields=frame_fields, fields=other,
-                        orientation=code.strip().upper(), intensity_range=irange)
+                        orientation=code.strip().upper(), intensity_range=irange,
+                        notes=[f"{src}: {n}" for n in notes])
 
 
 # -- writing ---------------------------------------------------------------------------------

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import RecordingError
+from ._limits import check_allocation
 from ._metaimage import _to_gray_uint8
 
 __all__ = ["NrrdRecording", "read_nrrd"]
@@ -41,6 +42,61 @@ class NrrdRecording:
     meta: dict = field(default_factory=dict)
 
 
+# NRRD's scalar type names (the format's specification) and their sizes in bytes
+_TYPE_BYTES = {**dict.fromkeys(("signed char", "int8", "int8_t", "uchar", "unsigned char",
+                                "uint8", "uint8_t"), 1),
+               **dict.fromkeys(("short", "short int", "signed short", "signed short int",
+                                "int16", "int16_t", "ushort", "unsigned short",
+                                "unsigned short int", "uint16", "uint16_t"), 2),
+               **dict.fromkeys(("int", "signed int", "int32", "int32_t", "uint",
+                                "unsigned int", "uint32", "uint32_t", "float"), 4),
+               **dict.fromkeys(("longlong", "long long", "long long int", "signed long long",
+                                "signed long long int", "int64", "int64_t", "ulonglong",
+                                "unsigned long long", "unsigned long long int", "uint64",
+                                "uint64_t", "double"), 8)}
+
+
+def _check_header(path: Path, src: str) -> None:
+    """The header alone, before any pixel is read: a known scalar type, sizes this machine can
+    hold, and a detached data file that is a regular file next to the header holding (for raw
+    encoding) the bytes the sizes need."""
+    import nrrd
+
+    try:
+        with open(path, "rb") as fh, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            header = nrrd.read_header(fh)
+            header_end = fh.tell()
+    except Exception as exc:  # a damaged header raises whatever pynrrd's parser meets
+        raise RecordingError(f"{src}: not a readable NRRD header ({type(exc).__name__}: "
+                             f"{exc})") from None
+    kind = str(header.get("type", "")).strip().lower()
+    if kind not in _TYPE_BYTES:
+        raise RecordingError(f"{src}: field type = {header.get('type')!r} is not a scalar type "
+                             "needlenet reads (uchar, short, float, ...)")
+    sizes = np.atleast_1d(np.asarray(header.get("sizes", []))).astype(object)
+    if not sizes.size or any(not isinstance(n, (int, np.integer)) or n < 1 for n in sizes):
+        raise RecordingError(f"{src}: field sizes = {header.get('sizes')!r} must be positive "
+                             "whole numbers")
+    nbytes = check_allocation(sizes, _TYPE_BYTES[kind], src, "sizes/type")
+    raw = str(header.get("encoding", "")).lower() == "raw"
+    data_file = header.get("data file", header.get("datafile"))
+    if data_file is None:
+        if raw and os.path.getsize(path) - header_end < nbytes:
+            raise RecordingError(f"{src}: truncated: sizes/type need {nbytes} bytes of pixels, "
+                                 f"the file has {os.path.getsize(path) - header_end}")
+        return
+    target = Path(str(data_file))
+    target = target if target.is_absolute() else path.parent / target
+    if not target.is_file():
+        raise RecordingError(f"{src}: field data file = {data_file!r} is not a regular file "
+                             "(missing, a folder or a device); needlenet reads one detached "
+                             "data file")
+    if raw and os.path.getsize(target) < nbytes:
+        raise RecordingError(f"{target}: truncated: {src}'s sizes/type need {nbytes} bytes, the "
+                             f"file has {os.path.getsize(target)}")
+
+
 def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
     """Read a NRRD image, volume or sequence; raise :class:`RecordingError` naming the file and
     the field at fault."""
@@ -50,11 +106,13 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
     src = str(path)
     if not path.is_file():
         raise FileNotFoundError(f"{src}: no such recording")
+    _check_header(path, src)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             data, header = nrrd.read(src, index_order="F")
-    except (nrrd.NRRDError, OSError, ValueError, EOFError, zlib.error, TypeError) as exc:
+    except (nrrd.NRRDError, OSError, ValueError, EOFError, zlib.error, TypeError,
+            KeyError, StopIteration, MemoryError) as exc:
         raise RecordingError(f"{src}: not a readable NRRD file ({exc})") from None
     nd = data.ndim
     kinds = [str(k).lower() for k in header.get("kinds", [])]
@@ -93,7 +151,7 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
     if not lists:
         arr = arr[None]
     channels = int(data.shape[colors[0]]) if colors else 1
-    images, irange = _to_gray_uint8(np.ascontiguousarray(arr), channels)
+    images, irange, notes = _to_gray_uint8(np.ascontiguousarray(arr), channels)
 
     spacing = None
     unit = []
@@ -135,4 +193,6 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
     meta = {"nrrd": {"kinds": kinds, "space": header.get("space")}}
     if irange is not None:
         meta["intensity_range"] = list(irange)
+    if notes:
+        meta["warnings"] = [f"{src}: {n}" for n in notes]
     return NrrdRecording(images, spacing, origin, timestamps, meta)

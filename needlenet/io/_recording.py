@@ -36,6 +36,7 @@ from ._frames import (
     read_video,
     sidecar_path,
 )
+from ._limits import check_extent, check_fps, check_frame_times, check_meta_numbers, check_spacing
 from ._metaimage import PLUS_SUFFIXES, PlusSequence, read_plus, write_plus
 
 __all__ = ["load_recording", "save_plus_sequence", "sequence_to_plus", "needle_tip_matrix",
@@ -168,17 +169,20 @@ def save_plus_sequence(seq, path: str | os.PathLike, estimates=None, *, compress
 
 def _timestamps(T, file_ts, fps, src, where="frame times"):
     if fps is not None:
-        if not np.isfinite(fps) or fps <= 0:
-            raise RecordingError(f"{src}: fps must be positive, got {fps}")
-        return np.arange(T) / float(fps)
+        return np.arange(T) / check_fps(fps, src, "fps (--fps)")
     if file_ts is not None:
         ts = np.asarray(file_ts, float)
         if ts.shape != (T,):
             raise RecordingError(f"{src}: {ts.size} timestamps for {T} frames")
+        if not np.all(np.isfinite(ts)):
+            raise RecordingError(f"{src}: {where}: frame "
+                                 f"{int(np.flatnonzero(~np.isfinite(ts))[0])} has no finite "
+                                 "time; pass fps (--fps) to use a fixed frame rate instead")
         if T > 1 and np.any(np.diff(ts) < 0):
             raise RecordingError(f"{src}: frame timestamps decrease (frame "
                                  f"{int(np.flatnonzero(np.diff(ts) < 0)[0]) + 1}); pass fps "
                                  "(--fps) to use a fixed frame rate instead")
+        check_frame_times(ts, src, where)
         return ts
     if T == 1:
         return np.zeros(1)
@@ -217,6 +221,23 @@ def _labels_from_plus(plus: PlusSequence, pose, modality, grid, src) -> dict:
     elif modality == "volume":
         return {}  # Zhao's metrics need the entry point; without it the labels are unusable
     return out
+
+
+def _drop_invalid_frames(seq_kw: dict, image_ok: np.ndarray, src: str) -> str:
+    """Remove the frames PLUS marks ``ImageStatus = INVALID`` (a frame grabber's dropped or
+    torn frames) from every per-frame entry of ``seq_kw``; returns the note for the user."""
+    bad = np.flatnonzero(~image_ok)
+    if bad.size == len(image_ok):
+        raise RecordingError(f"{src}: every frame is marked ImageStatus = INVALID; nothing to "
+                             "track")
+    T = len(image_ok)
+    for key, value in list(seq_kw.items()):
+        if isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == T \
+                and key not in ("spacing_mm", "origin_mm"):
+            seq_kw[key] = value[image_ok]
+    shown = ", ".join(str(int(i)) for i in bad[:10]) + (" ..." if bad.size > 10 else "")
+    return (f"{src}: skipped {bad.size} of {T} frames marked ImageStatus = INVALID "
+            f"(frames {shown}); frame numbers below count the frames kept")
 
 
 def load_recording(path: str | os.PathLike, *, modality: str | None = None,
@@ -259,6 +280,7 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
     file_modality = None
     sidecar: dict = {}
     plus = None
+    warnings: list[str] = []
     if path.is_dir() or suffix in VIDEO_SUFFIXES:
         sc = sidecar_path(path)
         if sc is not None:
@@ -268,7 +290,8 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
             images, container_fps = read_image_folder(path), None
             meta["format"] = "image folder"
         else:
-            images, container_fps = read_video(path)
+            images, container_fps, notes = read_video(path)
+            warnings += notes
             meta["format"] = "video"
         file_sp, origin = sidecar.get("spacing_mm"), sidecar.get("origin_mm")
         file_ts = sidecar.get("timestamps_s")
@@ -300,6 +323,7 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
                         "invalid_images": np.flatnonzero(~plus.image_ok).tolist()}
         if plus.intensity_range is not None:
             meta["intensity_range"] = list(plus.intensity_range)
+        warnings += plus.notes
         if _META_FIELD in plus.fields:
             try:
                 saved = json.loads(plus.fields[_META_FIELD])
@@ -315,6 +339,7 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
         rec = read_nrrd(path)
         images, file_sp, origin, file_ts = rec.images, rec.spacing_mm, rec.origin_mm, \
             rec.timestamps_s
+        warnings += rec.meta.pop("warnings", [])
         meta.update(format="nrrd", **rec.meta)
     else:
         raise RecordingError(f"{src}: unknown recording type {suffix or '(no suffix)'!r}; "
@@ -344,6 +369,10 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
     if sp.size != nd:
         raise RecordingError(f"{src}: spacing {sp.tolist()} has {sp.size} values for {nd}D "
                              "frames")
+    check_spacing(sp, src, "--spacing" if spacing_mm is not None else {
+        "plus": "ElementSpacing", "nrrd": "space directions / spacings", "image folder":
+        "the sidecar's spacing_mm", "video": "the sidecar's spacing_mm"}.get(
+        meta.get("format"), "spacing_mm"))
     if spacing_mm is not None:
         meta["spacing_from"] = "argument"
     origin = np.zeros(nd) if origin is None else np.asarray(origin, float)
@@ -357,6 +386,8 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
         x, y = int(crop[0]), int(crop[1])
         origin = origin + np.array([y, x]) * sp
         meta["crop"] = [int(c) for c in crop]
+    check_extent(images.shape[1:], sp, src, "spacing")
+    check_meta_numbers(meta, src)
     kw.setdefault("dynamic_range_db", DEFAULT_DYNAMIC_RANGE_DB)
     if "dynamic_range_db" not in sidecar and meta.get("format") in ("image folder", "video",
                                                                     "nrrd"):
@@ -375,6 +406,10 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
                 ~plus.transform_ok[pose_transform]).tolist()
         grid = synth.Grid(images.shape[1:], tuple(sp), tuple(origin))
         seq_kw.update(_labels_from_plus(plus, seq_kw.get("probe_pose"), modality, grid, src))
+        if not plus.image_ok.all():
+            warnings.append(_drop_invalid_frames(seq_kw, plus.image_ok, src))
+    if warnings:
+        meta["warnings"] = warnings
     if modality != file_modality and file_modality is not None and suffix == ".npz":
         raise RecordingError(f"{src}: holds {file_modality!r} frames, not {modality!r}")
     try:

@@ -60,7 +60,7 @@ def test_truncated_nrrd_is_named(tmp_path):
     nrrd.write(str(p), _rng(3).integers(0, 256, (20, 20, 4), dtype=np.uint8),
                {"encoding": "raw", "kinds": ["domain", "domain", "list"]}, index_order="F")
     p.write_bytes(p.read_bytes()[:-100])
-    with pytest.raises(RecordingError, match=r"t\.nrrd: not a readable NRRD file"):
+    with pytest.raises(RecordingError, match=r"t\.nrrd: truncated: sizes/type need 1600 bytes"):
         load_recording(p, spacing_mm=0.1, fps=10)
 
 
