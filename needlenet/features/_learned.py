@@ -107,6 +107,7 @@ class LearnedFeatures(FeatureSource):
         if inputs != ["image"] or outputs != ["likelihood"]:
             raise ModelError(f"model {path}: expected input 'image' and output 'likelihood', "
                              f"got {inputs} -> {outputs}")
+        self._check_model(path)
         self.path = path
         self.name = f"learned:{path.name}"
         self.margin_mm = float(margin_mm)
@@ -117,6 +118,49 @@ class LearnedFeatures(FeatureSource):
         if self.target_reference not in ("centerline", "wall"):
             raise ModelError(f"model {path}: metadata target_reference must be 'centerline' "
                              f"or 'wall', got {self.target_reference!r}")
+
+    def _check_model(self, path: Path) -> None:
+        """Metadata in range, an input of rank 2 + D with free spatial axes, and one dry run on
+        a black image that must give two finite maps: a model that cannot track is refused
+        when it is loaded, not at the first frame."""
+        nd = 3 if self.modality == "volume" else 2
+        if self.modality not in ("inplane", "axial", "volume"):
+            raise ModelError(f"model {path}: metadata modality {self.modality!r} is not "
+                             "inplane, axial or volume")
+        sp = np.asarray(self.spacing_mm, float)
+        if sp.shape != (nd,) or not np.all((sp >= 0.005) & (sp <= 5.0)):
+            raise ModelError(f"model {path}: metadata spacing_mm {list(self.spacing_mm)} must "
+                             f"be {nd} values in 0.005-5 mm")
+        if not 1 <= self.stride <= 16 or not 1 <= self.multiple <= 256:
+            raise ModelError(f"model {path}: metadata output_stride {self.stride} and "
+                             f"input_multiple {self.multiple} must be 1-16 and 1-256")
+        n = self.normalization
+        if not all(np.isfinite(n[k]) for k in ("scale", "mean", "std")) or n["std"] <= 0 \
+                or n["scale"] <= 0:
+            raise ModelError(f"model {path}: metadata normalization {n} needs finite values "
+                             "and a positive scale and std")
+        shape = self.session.get_inputs()[0].shape
+        if len(shape) != 2 + nd:
+            raise ModelError(f"model {path}: input 'image' has rank {len(shape)}; a "
+                             f"{self.modality} model takes (batch, 1, {nd} spatial axes)")
+        if any(isinstance(d, int) for d in shape[2:]):
+            raise ModelError(f"model {path}: input 'image' has fixed spatial axes {shape[2:]}; "
+                             "needlenet feeds frames of any size (export with dynamic axes)")
+        side = 4 * self.multiple * (1 if nd == 3 else 2)
+        black = np.zeros((side,) * nd, np.float32)  # a black frame, normalised as any frame
+        blank = normalize(black, self.normalization,
+                          frame_statistics(black, self.normalization))[None, None]
+        try:
+            y = self.session.run(["likelihood"], {"image": blank})[0]
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise ModelError(f"model {path}: a dry run on a blank {side}-pixel input failed: "
+                             f"{str(exc).splitlines()[0]}") from None
+        if y.ndim != 2 + nd or y.shape[1] != 2:
+            raise ModelError(f"model {path}: output 'likelihood' has shape {y.shape} for a "
+                             f"{blank.shape} input; expected (batch, 2 maps: shaft, tip, ...)")
+        if not np.all(np.isfinite(y)):
+            raise ModelError(f"model {path}: output 'likelihood' is not finite on a black "
+                             "frame")
 
     def run_model(self, image: np.ndarray, spacing_mm, level: float | None = None) -> np.ndarray:
         """Maps (2, *image.shape) in [0, 1] for an image at ``spacing_mm``; ``level``: the
@@ -129,7 +173,9 @@ class LearnedFeatures(FeatureSource):
         y = self.session.run(["likelihood"], {"image": xp[None, None].astype(np.float32)})[0][0]
         up = to_frame_grid(y, xp.shape)  # stride-2 output back to the padded model grid
         up = up[(slice(None),) + crop]
-        return np.clip(to_frame_grid(up, image.shape), 0.0, 1.0)
+        # fmax/fmin clip like np.clip but turn NaN into 0: a model that fails somewhere gives
+        # no evidence there (the tracker then says lost), never a NaN estimate
+        return np.fmin(np.fmax(to_frame_grid(up, image.shape), 0.0), 1.0)
 
     def likelihood(self, frame: Frame, roi: tuple[slice, ...] | None = None) -> Likelihood:
         im = np.asarray(frame.image)
