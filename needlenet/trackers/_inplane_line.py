@@ -11,7 +11,10 @@ segment's end away from the entry, refined by the tip map where the source has o
 constant-velocity Kalman filter on the tip's (x, z) smooths it between frames. A segment that
 runs across the imaged region from edge to edge shows no tip (a bright tissue interface, or a
 needle whose tip has left the view, or the edge of a capture margin or sector mask) and is not
-taken for one.
+taken for one. Nor is a segment floating in the tissue (neither end at the edge of the view)
+once a needle has been seen entering through that edge, unless it lies on that needle's axis
+(the same needle, partly out of the plane): a needle goes in along its axis, and a new one
+comes in through the skin or the side of the view, so a floating line elsewhere is tissue.
 
 Which end is the tip. A needle goes in from the skin (the top of the image) or from beyond a
 side edge and goes deeper as it advances, so of a segment that descends by more than
@@ -78,7 +81,9 @@ class LineTrackerParams:
     region runs across the image and shows no tip (an interface, or a needle whose tip is out
     of view; so is the edge of a capture margin or sector mask): no needle.
     ``entry_margin_mm``: a segment with an end this close to that edge enters through it, as
-    an inserted needle does, and is preferred to one floating in the tissue.
+    an inserted needle does, and is preferred to one floating in the tissue; once one has been
+    tracked, a floating segment must lie within ``track_window_deg``/``track_window_mm`` of its
+    axis.
     ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
     not read (the mask's step is no echo)."""
 
@@ -189,6 +194,7 @@ class LineTracker(Tracker):
 
     def reset(self) -> None:
         super().reset()
+        self._axis: tuple[np.ndarray, np.ndarray] | None = None  # (point, unit direction)
         self._forget()
 
     def _forget(self) -> None:
@@ -280,6 +286,10 @@ class LineTracker(Tracker):
             if a <= p.edge_margin_mm and b <= p.edge_margin_mm:
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line runs across the "
                         "image from edge to edge")
+            if self._axis is not None and min(a, b) > p.entry_margin_mm and \
+                    not _on_line(seg, *self._axis, p.track_window_deg, p.track_window_mm):
+                return (f"the {seg.length_mm:.0f} mm line floats in the tissue off the axis of "
+                        "the needle seen entering")
             return ""
 
         def priority(seg: NeedleLine) -> int:
@@ -305,9 +315,12 @@ class LineTracker(Tracker):
         wm = self._evidence(frame, lik.shaft, inner)
         if self._x is not None:
             self._x, self._P = predict(self._x, self._P, *self._motion(dt))
-        seg, new_line = self._search(wm, *self._validity(frame, inner))
+        is_valid, priority = self._validity(frame, inner)
+        seg, new_line = self._search(wm, is_valid, priority)
         if not self._is_needle(seg):
             return self._missed(frame, seg)
+        if priority(seg):  # it enters through the edge of the view: the insertion's axis
+            self._axis = (0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy())
         if new_line and self._dir is not None:
             self._forget()  # another line than the one tracked: start anew
         seg = self._orient(seg, frame, inner)
@@ -377,12 +390,8 @@ class LineTracker(Tracker):
         """Whether ``seg`` lies within the tracking window of the tracked line."""
         if not seg or self._dir is None:
             return False
-        p = self.params
-        cos = abs(float(seg.direction @ self._dir))
-        n = np.array([-self._dir[1], self._dir[0]])
-        mid = 0.5 * (seg.start_mm + seg.end_mm)
-        return cos >= np.cos(np.deg2rad(p.track_window_deg)) and \
-            abs(float((mid - self._line_point) @ n)) <= p.track_window_mm
+        return _on_line(seg, self._line_point, self._dir, self.params.track_window_deg,
+                        self.params.track_window_mm)
 
     def _is_needle(self, seg: NeedleLine) -> bool:
         return bool(seg) and seg.length_mm >= self.params.min_length_mm and \
@@ -474,6 +483,16 @@ class LineTracker(Tracker):
                     "theta_deg": float(np.degrees(np.arctan2(seg.direction[1],
                                                              abs(seg.direction[0])))),
                     "tip_velocity_mm_s": self._x[2:].copy(), **extras})
+
+
+def _on_line(seg: NeedleLine, point: np.ndarray, direction: np.ndarray, window_deg: float,
+             window_mm: float) -> bool:
+    """Whether ``seg`` runs within ``window_deg`` of the line (``point``, ``direction``) with
+    its midpoint within ``window_mm`` of it."""
+    cos = abs(float(seg.direction @ direction))
+    n = np.array([-direction[1], direction[0]])
+    mid = 0.5 * (seg.start_mm + seg.end_mm)
+    return cos >= np.cos(np.deg2rad(window_deg)) and abs(float((mid - point) @ n)) <= window_mm
 
 
 def _entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float,
