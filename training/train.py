@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from needlenet._settings import convert_setting
 from needlenet.features._resample import NORMALIZATIONS
-from needlenet.trackers._registry import convert_setting
 
 from .data import DataConfig, SynthDataModule, target_reference
 from .module import LikelihoodModule

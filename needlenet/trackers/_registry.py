@@ -5,11 +5,11 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import importlib
-import math
+
+from .._settings import convert_setting
 
 __all__ = ["TRACKERS", "METHOD_TRACKERS", "DEFAULT_METHODS", "DEFAULT_FEATURES",
-           "tracker_class", "tracker_methods", "make_tracker", "tracker_params",
-           "convert_setting", "parse_value", "FEATURE_KINDS"]
+           "tracker_class", "tracker_methods", "make_tracker", "tracker_params", "FEATURE_KINDS"]
 
 # the papers' tracker of each modality (module, class, parameter class)
 TRACKERS = {
@@ -68,57 +68,6 @@ def make_tracker(name: str, method: str, features: str = "classical", model: str
     return cls(method, features=source, **params)
 
 
-def parse_value(text: str):
-    """A setting's text as None, a boolean, an integer, a float or (otherwise) the text."""
-    text = text.strip()
-    low = text.lower()
-    if low in ("none", "null"):
-        return None
-    if low in ("true", "false"):
-        return low == "true"
-    for conv in (int, float):
-        try:
-            return conv(text)
-        except ValueError:
-            pass
-    return text
-
-
-def convert_setting(name: str, text: str, default):
-    """``text`` as a value of the type of ``default`` (the field's default value): the one
-    reading of ``NAME=VALUE`` settings, for ``track --param`` and ``train --param``."""
-    low = text.strip().lower()
-    if default is None or low in ("none", "null"):
-        return parse_value(text)
-    if isinstance(default, bool):
-        if low in ("true", "1", "yes", "on"):
-            return True
-        if low in ("false", "0", "no", "off"):
-            return False
-        raise ValueError(f"parameter {name}: expected true or false, got {text!r}")
-    if isinstance(default, (int, float)):
-        try:
-            value = float(text)
-        except ValueError:
-            raise ValueError(f"parameter {name}: expected a number, got {text!r}") from None
-        if isinstance(default, int):
-            if not value.is_integer():
-                raise ValueError(f"parameter {name}: expected an integer, got {text!r}")
-            return int(value)
-        if not math.isfinite(value):
-            raise ValueError(f"parameter {name}: expected a finite number, got {text!r}")
-        return value
-    if isinstance(default, tuple):
-        items = [t for t in text.split(",") if t.strip()]
-        if not items:
-            raise ValueError(f"parameter {name}: expected comma-separated values, got {text!r}")
-        return tuple(convert_setting(name, t, default[0] if default else 0.0) for t in items)
-    if isinstance(default, str):
-        return text
-    raise ValueError(f"parameter {name} ({type(default).__name__}) cannot be set as text; "
-                     f"set its fields instead ({name}.FIELD=VALUE)")
-
-
 def tracker_params(name: str, settings, method: str | None = None):
     """The parameter dataclass of the tracker that runs ``method`` of modality ``name``
     (``InplaneParams``, ``LineTrackerParams``, ``VolumeTrackerParams``, ``AxialParams``)
@@ -152,13 +101,14 @@ def tracker_params(name: str, settings, method: str | None = None):
         if rest:
             if not dataclasses.is_dataclass(default):
                 raise ValueError(f"parameter {head} has no fields ({key!r})")
-            sub = {f.name for f in dataclasses.fields(default)}
+            sub = {f.name: f.type for f in dataclasses.fields(default)}
             if rest not in sub:
                 raise ValueError(f"unknown {type(default).__name__} parameter {rest!r} of "
                                  f"{head} (parameters: {', '.join(sorted(sub))})")
-            nested.setdefault(head, {})[rest] = convert_setting(key, text, getattr(default, rest))
+            nested.setdefault(head, {})[rest] = convert_setting(key, text, getattr(default, rest),
+                                                                sub[rest])
         else:
-            top[head] = convert_setting(key, text, default)
+            top[head] = convert_setting(key, text, default, fields[head].type)
     for head, values in nested.items():
         top[head] = dataclasses.replace(top.get(head, getattr(base, head)), **values)
     return cls(**top)

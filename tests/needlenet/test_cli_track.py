@@ -88,6 +88,21 @@ def test_tracker_params_are_read_as_their_fields_types():
     ("max_trials.x=3", "parameter max_trials has no fields"),
     ("frangi=1", "set its fields instead (frangi.FIELD=VALUE)"),
     ("image_refine", "expected NAME=VALUE"),
+    # each value is checked against its field's type: none only where the field may be None,
+    # floats finite, integers whole, booleans true/false/1/0/yes/no, tuples item by item
+    ("roi_radius_mm=none", "parameter roi_radius_mm: expected a finite number, got 'none': "
+                           "roi_radius_mm cannot be none"),
+    ("roi_radius_mm=inf", "parameter roi_radius_mm: expected a finite number, got 'inf'"),
+    ("intensity_threshold=nan", "parameter intensity_threshold: expected a finite number, "
+                                "got 'nan'"),
+    ("max_trials=inf", "parameter max_trials: expected an integer, got 'inf'"),
+    ("max_trials=none", "parameter max_trials: expected an integer, got 'none'"),
+    ("image_refine=on", "parameter image_refine: expected true or false (or 1/0, yes/no), "
+                        "got 'on'"),
+    ("image_refine_radii_mm=1,nan", "parameter image_refine_radii_mm: expected a finite "
+                                    "number, got 'nan' (item 2 of '1,nan')"),
+    ("insertion.variance_threshold_mm2=none", "parameter insertion.variance_threshold_mm2: "
+                                              "expected a finite number, got 'none'"),
 ])
 def test_bad_tracker_params_are_named(tmp_path, capsys, setting, msg):
     from needlenet.trackers import tracker_params
@@ -99,6 +114,50 @@ def test_bad_tracker_params_are_named(tmp_path, capsys, setting, msg):
     rc = main(["track", str(tmp_path / "none.npz"), "--tracker", "volume", "--method",
                "roi-rk", "--param", setting])
     assert rc == 2 and msg in capsys.readouterr().err
+
+
+def test_settings_are_read_as_their_fields_types_strictly():
+    from needlenet._settings import convert_setting, parse_value
+    from needlenet.trackers import tracker_params
+
+    # accepted: the readings of each type, none where the field may hold None
+    assert [convert_setting("b", t, False) for t in ("yes", "1", "TRUE", "no", "0", "false")] \
+        == [True, True, True, False, False, False]
+    assert convert_setting("n", "1e2", 5) == 100 and isinstance(convert_setting("n", "7", 5), int)
+    assert convert_setting("x", "2.5", 1.0) == 2.5
+    assert convert_setting("t", "1, 2", (1.0, 2.0)) == (1.0, 2.0)
+    assert convert_setting("o", "none", None) is None
+    assert convert_setting("o", "none", 0.5, "float | None") is None
+    assert convert_setting("o", "3", None, "int | None") == 3
+    assert parse_value("null") is None and parse_value("4") == 4 and parse_value("a") == "a"
+    p = tracker_params("volume", ["likelihood_relative=none", "image_tip_background_mm=none",
+                                  "insertion_candidates_mm3=null"])
+    assert p.likelihood_relative is None and p.image_tip_background_mm is None
+    assert p.insertion_candidates_mm3 is None
+    # refused, with the setting, the value and what is expected named
+    for args, msg in [
+        (("min_length_mm", "none", 10.0), "parameter min_length_mm: expected a finite "
+                                          "number, got 'none': min_length_mm cannot be none"),
+        (("speed", "nan", 1.0), "parameter speed: expected a finite number, got 'nan'"),
+        (("speed", "-inf", 1.0), "parameter speed: expected a finite number, got '-inf'"),
+        (("steps", "2.5", 10), "parameter steps: expected an integer, got '2.5'"),
+        (("steps", "ten", 10), "parameter steps: expected a number (an integer), got 'ten'"),
+        (("flag", "on", True), "parameter flag: expected true or false (or 1/0, yes/no), "
+                               "got 'on'"),
+        (("flag", "none", True), "parameter flag: expected true or false"),
+        (("mode", "none", "auto"), "parameter mode: expected text, got 'none'"),
+        (("pair", "1,inf", (1.0, 2.0)), "parameter pair: expected a finite number, got 'inf' "
+                                        "(item 2 of '1,inf')"),
+        (("pair", "none", (1.0, 2.0)), "parameter pair: expected comma-separated values, "
+                                       "got 'none'"),
+        (("level", "nan", None), "parameter level: expected a finite number, got 'nan'"),
+        (("sign", "1.5", None, "int | None"), "parameter sign: expected an integer, got '1.5'"),
+    ]:
+        with pytest.raises(ValueError) as exc:
+            convert_setting(*args)
+        assert msg in str(exc.value), str(exc.value)
+    with pytest.raises(ValueError, match="parameter insertion_sign: expected an integer"):
+        tracker_params("axial", ["insertion_sign=1.5"])
 
 
 def test_track_passes_params_to_the_tracker(tmp_path):

@@ -1,12 +1,15 @@
-"""``needlenet servo``: the probe-servo loop from the command line."""
+"""``needlenet servo``: the probe-servo loops (Ye 2025, Chatelain 2013) from the command line,
+and their rows as a table."""
 
 from __future__ import annotations
 
 import json
 import sys
 
+from ._common import CLIError, check_output
 
-def add_servo_parser(sub) -> None:
+
+def add_parser(sub) -> None:
     p = sub.add_parser(
         "servo", help="run the probe-servo loop (Ye 2025, Chatelain 2013)",
         description="Closed probe-servo loops. 'servo': Ye 2025's EKF + PI/PD tracking of a 2D "
@@ -34,12 +37,10 @@ def add_servo_parser(sub) -> None:
     p.add_argument("--plot", default=None, help="write trajectories to this .png")
     p.add_argument("--overwrite", action="store_true")
     p.add_argument("--quiet", action="store_true")
-    p.set_defaults(func=_cmd_servo)
+    p.set_defaults(func=run)
 
 
 def _values(given, allowed: tuple[str, ...], default: tuple[str, ...], what: str):
-    from ..cli import CLIError
-
     if not given:
         return default
     out: list[str] = []
@@ -56,9 +57,8 @@ def _values(given, allowed: tuple[str, ...], default: tuple[str, ...], what: str
     return tuple(dict.fromkeys(out))
 
 
-def _cmd_servo(args) -> int:
-    from ..cli import CLIError, _check_output
-    from . import _api
+def run(args) -> int:
+    from ..servo import _api
 
     if args.scenario not in _api.SCENARIOS:
         raise CLIError(f"unknown scenario {args.scenario!r}; choose one of "
@@ -73,8 +73,8 @@ def _cmd_servo(args) -> int:
         raise CLIError(f"--repeat must be a positive integer, got {args.repeat}")
     if args.seed < 0:
         raise CLIError(f"--seed must be non-negative, got {args.seed}")
-    json_path = _check_output(args.json, ".json", args.overwrite, "--json")
-    plot_path = _check_output(args.plot, ".png", args.overwrite, "--plot")
+    json_path = check_output(args.json, ".json", args.overwrite, "--json")
+    plot_path = check_output(args.plot, ".png", args.overwrite, "--plot")
     try:
         _api.check_options(args.scenario, filters, gains, feats, args.repeat, args.model,
                            args.seed)
@@ -103,7 +103,7 @@ def _cmd_servo(args) -> int:
                        "the simulated scanner's imaging; other jobs may share the CPU"}
         json_path.write_text(json.dumps(doc, indent=1, default=_json_default))
     if plot_path is not None:
-        from ._plot import plot_runs
+        from ..servo import plot_runs
 
         plot_runs(traces, plot_path, f"needlenet servo {args.scenario}")
     return 0

@@ -1,0 +1,51 @@
+"""``needlenet bench``: run a benchmark suite and report it."""
+
+from __future__ import annotations
+
+import sys
+
+from ._common import CLIError, check_output
+
+
+def add_parser(sub) -> None:
+    from ..bench import SUITES
+
+    p = sub.add_parser("bench", help="run a benchmark suite",
+                       description="Run a benchmark suite on seeded data, with classical and "
+                                   "learned features through the same back ends, and report "
+                                   "measured figures with the machine they ran on.")
+    p.add_argument("suite", help=", ".join(SUITES))
+    p.add_argument("--quick", action="store_true",
+                   help="a shorter run (each suite within about two minutes)")
+    p.add_argument("--json", dest="json_out", help="write the rows as JSON (written as they "
+                                                   "finish, so an interrupted run keeps them)")
+    p.add_argument("--report", help="write a report directory: report.md, results.json, plots")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --json file or report")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..bench import SUITES, BenchInterrupted, check_report_dir, run_suite
+
+    if args.suite not in SUITES:
+        raise CLIError(f"bench: unknown suite {args.suite!r}; available: {', '.join(SUITES)}")
+    out = check_output(args.json_out, ".json", args.overwrite, "--json")
+    if args.report is not None:
+        try:
+            check_report_dir(args.report, args.overwrite)
+        except ValueError as exc:
+            raise CLIError(str(exc)) from None
+    try:
+        result = run_suite(args.suite, quick=args.quick, json_out=out, seed=args.seed,
+                           report_dir=args.report, overwrite=args.overwrite)
+    except BenchInterrupted as exc:
+        print(f"needlenet: {exc}", file=sys.stderr)
+        return 130
+    print()
+    print(result["markdown"])
+    for p in (out, result.get("report")):
+        if p:
+            print(f"wrote {p}")
+    return 0

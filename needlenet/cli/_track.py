@@ -1,0 +1,250 @@
+"""``needlenet track``: run a tracker on a sequence file or a recording and report it."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from ._common import CLIError, check_output, check_plus_output
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("track", help="track the needle in a sequence file or a recording",
+                       description="Run a tracker on a sequence file or a recording of your own "
+                                   "(PLUS .mha/.mhd, NRRD, a folder of image frames, a video); "
+                                   "with labels, report the paper's metrics. Results can be "
+                                   "written as a PLUS sequence for 3D Slicer and streamed live "
+                                   "over OpenIGTLink.")
+    p.add_argument("file", help="sequence file (.npz), PLUS sequence (.mha/.mhd), NRRD (.nrrd), "
+                                "a folder of PNG frames or a video (.mp4, .avi, ...)")
+    p.add_argument("--tracker", choices=["inplane", "volume", "axial"],
+                   help="default: the file's modality (2D frames without one: inplane)")
+    p.add_argument("--method",
+                   help="inplane: line (default: the needle found anywhere in the frame), df om "
+                        "om+f kf kf+f pf pf+f kfv kfv+f pfv pfv+f (Mathiassen 2017); volume: "
+                        "roi-rk (default) ransac chatelain; axial: carriere")
+    p.add_argument("--features", choices=["classical", "learned"],
+                   help="default: learned (the shipped model)")
+    p.add_argument("--angle", type=float, metavar="DEG",
+                   help="inplane: the insertion angle to the skin when known (0-90); the "
+                        "search then keeps near it")
+    p.add_argument("--model", help="an ONNX model instead of the shipped one")
+    p.add_argument("--json", dest="json_out", help="write per-frame results and the summary")
+    p.add_argument("--overlay", help="write an overlay animation (.gif, .mp4 or .avi)")
+    p.add_argument("--spacing", metavar="MM|DZ,DX",
+                   help="pixel spacing in mm, one value or per array axis (depth first); "
+                        "overrides the file's and is required when it has none")
+    p.add_argument("--crop", metavar="X,Y,W,H",
+                   help="keep only this pixel rectangle of 2D frames (the image area of a "
+                        "screen capture)")
+    p.add_argument("--fps", type=float,
+                   help="frame rate, for recordings without frame times (overrides them)")
+    p.add_argument("--out-plus", metavar="FILE.seq.mha",
+                   help="write the images and a NeedleTipToReference transform per frame as a "
+                        "PLUS sequence (.mha or .mhd) for 3D Slicer's Sequences module")
+    p.add_argument("--igtl", type=int, metavar="PORT",
+                   help="stream each frame over OpenIGTLink on this port: IMAGE, the "
+                        "NeedleTipToReference TRANSFORM, tip and entry POINTs")
+    p.add_argument("--igtl-host", default="127.0.0.1",
+                   help="127.0.0.1 (default, this machine only) or a network interface name")
+    p.add_argument("--igtl-wait", type=float, default=0.0, metavar="S",
+                   help="wait up to S seconds for an OpenIGTLink client before tracking")
+    p.add_argument("--realtime", action="store_true",
+                   help="pace the frames at their timestamps (for watching a stream live)")
+    p.add_argument("--seed", type=int, default=0, help="seed of randomised methods")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="a tracker parameter: a field of InplaneParams, VolumeTrackerParams "
+                        "or AxialParams (e.g. intensity_threshold=70, image_refine=false, "
+                        "insertion.variance_threshold_mm2=90); repeatable")
+    p.add_argument("--overwrite", action="store_true")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    out_json, overlay, out_plus = _check_outputs(args)
+    if args.igtl is not None and not 0 <= args.igtl <= 65535:
+        raise CLIError(f"--igtl {args.igtl}: a port is 0 to 65535")
+    if args.angle is not None and args.tracker not in (None, "inplane"):
+        raise CLIError(f"track: --angle is for the inplane tracker, not {args.tracker!r}")
+    if args.angle is not None and not 0.0 <= args.angle <= 90.0:
+        raise CLIError(f"track: --angle {args.angle:g}: an insertion angle is 0 to 90 degrees")
+    if args.tracker is not None:
+        _check_method(args)
+        params = _track_params(args)  # checked before the recording is read
+    seq = _load(args)
+    if args.tracker is None:
+        args.tracker = seq.modality
+        _check_method(args)
+        params = _track_params(args)
+    if seq.modality != args.tracker:
+        raise CLIError(f"track: {args.file} holds {seq.modality!r} frames "
+                       f"({seq.ndim}D); the {args.tracker!r} tracker needs "
+                       f"{'3D volumes' if args.tracker == 'volume' else args.tracker + ' images'}")
+    tracker = _make_tracker(args, params)
+    estimates = _run_tracker(args, tracker, seq)
+    _report(args, seq, estimates, out_json, overlay, out_plus)
+    return 0
+
+
+def _check_outputs(args):
+    """The checked ``--json``, ``--overlay`` and ``--out-plus`` paths (None where not given)."""
+    out_json = check_output(args.json_out, ".json", args.overwrite, "--json")
+    overlay = None
+    if args.overlay:
+        suffix = Path(args.overlay).suffix.lower()
+        if suffix not in (".gif", ".mp4", ".avi"):
+            raise CLIError(f"--overlay {args.overlay}: use .gif, .mp4 or .avi")
+        overlay = check_output(args.overlay, suffix, args.overwrite, "--overlay")
+    out_plus = None if args.out_plus is None else \
+        check_plus_output(args.out_plus, args.overwrite, "--out-plus")
+    return out_json, overlay, out_plus
+
+
+def _check_method(args) -> None:
+    """Fill in the default method and features of ``args.tracker`` and check the method."""
+    from ..trackers._registry import DEFAULT_FEATURES, DEFAULT_METHODS, tracker_methods
+
+    args.method = args.method or DEFAULT_METHODS[args.tracker]
+    args.features = args.features or DEFAULT_FEATURES
+    if args.method not in tracker_methods(args.tracker):
+        raise CLIError(f"track: tracker {args.tracker!r} has no method {args.method!r}; "
+                       f"choose one of {', '.join(tracker_methods(args.tracker))}")
+
+
+def _track_params(args):
+    """``--param`` settings as the tracker's parameter class (None without any)."""
+    from ..trackers._registry import tracker_params
+
+    if not args.param:
+        return None
+    try:
+        return tracker_params(args.tracker, args.param, args.method)
+    except (ValueError, TypeError) as exc:
+        raise CLIError(f"track: --param: {exc}") from None
+
+
+def _load(args):
+    """The recording as a sequence; bad input becomes one CLIError line."""
+    import numpy as np
+
+    import synth
+
+    from ..io import RecordingError, load_recording
+    from ..io._recording import parse_crop, parse_spacing
+
+    try:
+        spacing = None if args.spacing is None else parse_spacing(args.spacing)
+        crop = None if args.crop is None else parse_crop(args.crop)
+        is_npz = Path(args.file).suffix.lower() == ".npz"
+        modality = None if is_npz or args.tracker == "volume" else args.tracker
+        seq = load_recording(args.file, modality=modality, spacing_mm=spacing, crop=crop,
+                             fps=args.fps)
+    except (RecordingError, synth.SequenceFileError) as exc:
+        raise CLIError(str(exc)) from None
+    if seq.meta.get("format") == "plus" and args.spacing is None and \
+            np.allclose(seq.spacing_mm, 1.0):
+        print(f"needlenet: note: {args.file} says ElementSpacing = 1 (PLUS's default, pixels); "
+              "pass --spacing if a pixel is not 1 mm", file=sys.stderr)
+    return seq
+
+
+def _make_tracker(args, params):
+    from ..trackers._registry import make_tracker
+
+    kw = {"seed": args.seed}
+    if params is not None:
+        kw["params"] = params
+    if args.angle is not None:
+        kw["expected_angle_deg"] = args.angle
+    try:
+        return make_tracker(args.tracker, args.method, args.features, args.model, **kw)
+    except (ValueError, FileNotFoundError) as exc:
+        raise CLIError(f"track: {exc}") from None
+
+
+def _open_stream(args):
+    if args.igtl is None:
+        return None
+    from ..io import IGTLStreamer, StreamError
+
+    try:
+        streamer = IGTLStreamer(args.igtl, host=args.igtl_host)
+    except StreamError as exc:
+        raise CLIError(f"--igtl: {exc}") from None
+    print(f"OpenIGTLink: serving on {streamer.host}:{streamer.port}", file=sys.stderr)
+    if args.igtl_wait > 0 and not streamer.wait_for_client(args.igtl_wait):
+        print(f"OpenIGTLink: no client after {args.igtl_wait:g} s; tracking anyway (frames are "
+              "sent once a client connects)", file=sys.stderr)
+    return streamer
+
+
+def _run_tracker(args, tracker, seq) -> list:
+    """Every frame through ``tracker`` (paced with ``--realtime``, streamed with ``--igtl``):
+    the estimates."""
+    import time
+
+    import numpy as np
+
+    from synth._render import Progress
+
+    from ..trackers._base import frames_from_sequence
+
+    streamer = _open_stream(args)
+    bar = Progress(seq.n_frames, f"track {args.tracker}/{args.method}", not args.quiet)
+    estimates = []
+    ts = np.asarray(seq.timestamps_s, float)
+    start = time.perf_counter()
+    try:
+        for i, frame in enumerate(frames_from_sequence(seq)):
+            if args.realtime:
+                time.sleep(max(0.0, (ts[i] - ts[0]) - (time.perf_counter() - start)))
+            est = tracker.update(frame)
+            estimates.append(est)
+            bar.update()
+            if streamer is not None:
+                entry = est.extras.get("entry_mm", est.extras.get("axis_point_mm"))
+                streamer.send_frame(seq.images[i], seq.spacing_mm, est.tip_mm, est.direction,
+                                    entry, est.status, origin=seq.origin_mm,
+                                    probe_pose=None if seq.probe_pose is None
+                                    else seq.probe_pose[i], timestamp=None)
+    finally:
+        if streamer is not None:
+            streamer.close()
+            print(f"OpenIGTLink: sent {streamer.frames_sent} frames, skipped "
+                  f"{streamer.frames_skipped} (no client)", file=sys.stderr)
+    return estimates
+
+
+def _report(args, seq, estimates, out_json, overlay, out_plus) -> None:
+    """The summary on stdout, then the ``--json``, ``--overlay`` and ``--out-plus`` files."""
+    import json
+
+    from ..eval import evaluate, latency_summary
+
+    summary = {"file": str(args.file), "tracker": args.tracker, "method": args.method,
+               "features": args.features, "frames": seq.n_frames}
+    if seq.has_labels:
+        summary.update(evaluate(args.tracker, estimates, seq)["summary"])
+    else:
+        summary.update(latency_summary(estimates))
+    statuses = [e.status.value for e in estimates]
+    summary["status_counts"] = {s: statuses.count(s) for s in sorted(set(statuses))}
+    print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}, indent=1))
+    if out_json is not None:
+        out_json.write_text(json.dumps({"frames": [e.to_json() for e in estimates],
+                                        "summary": summary}, indent=1, default=float))
+        print(f"wrote {out_json}")
+    if overlay is not None:
+        from ..io import write_overlay
+
+        write_overlay(overlay, seq, estimates)
+        print(f"wrote {overlay}")
+    if out_plus is not None:
+        from ..io import RecordingError, save_plus_sequence
+
+        try:
+            save_plus_sequence(seq, out_plus, estimates, overwrite=args.overwrite)
+        except RecordingError as exc:
+            raise CLIError(f"--out-plus: {exc}") from None
+        print(f"wrote {out_plus}")

@@ -1,0 +1,134 @@
+"""``needlenet train`` and ``needlenet export``: the training extra's two commands."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ._common import CLIError, check_output
+
+_TRAIN_EXTRA = ("needs the training extra (torch, lightning, onnx): "
+                "pip install torch==2.13.0 && pip install 'needlenet[train]'")
+
+
+def _require_training(cmd: str) -> None:
+    import importlib.util
+
+    def absent(name: str) -> bool:
+        try:
+            return importlib.util.find_spec(name) is None
+        except (ImportError, ValueError):
+            return True
+
+    missing = [m for m in ("torch", "lightning", "onnx") if absent(m)]
+    if missing:
+        raise CLIError(f"{cmd} {_TRAIN_EXTRA} (missing: {', '.join(missing)})")
+
+
+# -- train --------------------------------------------------------------------------------
+
+def add_train_parser(sub) -> None:
+    p = sub.add_parser("train", help="train a needle likelihood network on synth data",
+                       description="Train a likelihood network (shaft and tip maps) on "
+                                   "sequences simulated on the fly. " + _TRAIN_EXTRA)
+    p.add_argument("model", help="inplane, axial or volume")
+    p.add_argument("--steps", type=int, help="optimisation steps (default: the shipped recipe)")
+    p.add_argument("--out", help="output directory (default runs/MODEL)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=2,
+                   help="data-generating processes (default 2: the trainer itself needs little)")
+    p.add_argument("--accelerator", default="cpu", choices=("cpu", "gpu", "auto"),
+                   help="where the network trains (default cpu, as the shipped models did; "
+                        "on a GPU machine the simulation is the bottleneck: raise --workers)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="change one setting of the recipe: a field of training.train."
+                        "TrainConfig or of its DataConfig, e.g. --param width=16 --param "
+                        "crop=48 --param cr_range=1.5,3.0; repeatable")
+    p.add_argument("--export", help="also export the result to this .onnx file")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=run_train)
+
+
+def run_train(args) -> int:
+    if args.model not in ("inplane", "axial", "volume"):
+        raise CLIError(f"train: unknown model {args.model!r}; choose inplane, axial or volume")
+    if args.steps is not None and args.steps < 1:
+        raise CLIError(f"train: --steps must be positive, got {args.steps}")
+    export = check_output(args.export, ".onnx", args.overwrite, "--export")
+    _require_training("train")
+    from training.train import train
+
+    cfg = _config(args)
+    if cfg.accelerator == "gpu":
+        import torch
+
+        if not torch.cuda.is_available():
+            raise CLIError(f"train: --accelerator gpu, but torch {torch.__version__} sees no "
+                           "GPU")
+    out = Path(cfg.out_dir)
+    if (out / "model.ckpt").exists() and not args.overwrite:
+        raise CLIError(f"train: {out / 'model.ckpt'} exists; pass --overwrite or --out DIR")
+    metrics = train(cfg)
+    for k, v in metrics.items():
+        print(f"{k}: {v}")
+    if export is not None:
+        from training.export import export_onnx, load_checkpoint
+
+        net, hp = load_checkpoint(metrics["checkpoint"])
+        r = export_onnx(net, hp["modality"], hp["spacing_mm"], export, overwrite=args.overwrite,
+                        extra_metadata={"train_steps": cfg.steps, "train_seed": args.seed,
+                                        **({"train_params": " ".join(args.param)}
+                                           if args.param else {})},
+                        target_reference=hp.get("target_reference", "centerline"),
+                        normalization=hp.get("normalization", "fixed"))
+        print(f"wrote {export} ({r['bytes']} bytes, onnxruntime vs torch {r['max_abs_diff']:.1e})")
+    return 0
+
+
+def _config(args):
+    """The shipped recipe of ``args.model`` with the options and ``--param`` settings."""
+    from training.train import config_for, settings_for
+
+    changes = {"seed": args.seed, "num_workers": args.workers,
+               "accelerator": args.accelerator}
+    if args.steps is not None:
+        changes["steps"] = args.steps
+    if args.out:
+        changes["out_dir"] = args.out
+    try:
+        settings = settings_for(args.model, args.param)
+        own = sorted(set(settings) & {"seed", "num_workers", "accelerator", "steps", "out_dir"})
+        if own:
+            raise ValueError(f"set {', '.join(own)} with its own option (--seed, --workers, "
+                             "--accelerator, --steps, --out), not --param")
+        return config_for(args.model, **changes, **settings)
+    except ValueError as exc:
+        raise CLIError(f"train: --param: {exc}") from None
+
+
+# -- export -------------------------------------------------------------------------------
+
+def add_export_parser(sub) -> None:
+    p = sub.add_parser("export", help="export a training checkpoint to ONNX",
+                       description="Export a checkpoint to ONNX (input 'image', output "
+                                   "'likelihood', dynamic spatial axes), verified against torch.")
+    p.add_argument("checkpoint")
+    p.add_argument("--out", required=True, help="the .onnx file")
+    p.add_argument("--overwrite", action="store_true")
+    p.set_defaults(func=run_export)
+
+
+def run_export(args) -> int:
+    out = check_output(args.out, ".onnx", args.overwrite, "--out")
+    _require_training("export")
+    from training.export import ExportError, export_onnx, load_checkpoint
+
+    try:
+        net, hp = load_checkpoint(args.checkpoint)
+        r = export_onnx(net, hp["modality"], hp["spacing_mm"], out, overwrite=args.overwrite,
+                        target_reference=hp.get("target_reference", "centerline"),
+                        normalization=hp.get("normalization", "fixed"))
+    except (ValueError, ExportError) as exc:
+        raise CLIError(f"export: {exc}") from None
+    print(f"wrote {out} ({r['bytes']} bytes, opset {r['opset']}, IR {r['ir_version']}, "
+          f"onnxruntime vs torch {r['max_abs_diff']:.1e})")
+    return 0
