@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from ._common import CLIError, check_output
+from ._common import CLIError, check_output, seed
 
 
 def add_parser(sub) -> None:
@@ -20,7 +20,7 @@ def add_parser(sub) -> None:
     p.add_argument("--json", dest="json_out", help="write the rows as JSON (written as they "
                                                    "finish, so an interrupted run keeps them)")
     p.add_argument("--report", help="write a report directory: report.md, results.json, plots")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing --json file or report")
     p.set_defaults(func=run)

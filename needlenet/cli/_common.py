@@ -5,21 +5,50 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["CLIError", "check_output", "check_plus_output"]
+__all__ = ["CLIError", "check_output", "check_plus_output", "seed"]
 
 
 class CLIError(Exception):
     """A user error: printed as one line, exit status 2."""
 
 
-def check_output(path: str | None, suffix: str, overwrite: bool, what: str) -> Path | None:
-    """``path`` (None stays None) if it ends in ``suffix``, does not exist (or ``overwrite``)
-    and its directory exists and is writable; otherwise a CLIError naming ``what``."""
+def seed(text: str) -> int:
+    """argparse type of ``--seed``: a whole number 0 to 2^63 - 1 (what numpy's generators
+    take)."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 0 <= value < 2**63:
+        raise argparse.ArgumentTypeError(f"{value} is outside 0 to 2^63 - 1")
+    return value
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist
+        return a.resolve() == b.resolve()
+
+
+def check_output(path: str | None, suffix: str, overwrite: bool, what: str,
+                 inputs: tuple = ()) -> Path | None:
+    """``path`` (None stays None) if it ends in ``suffix``, is no directory and none of
+    ``inputs`` (a recording is never overwritten by its own results, even with
+    ``overwrite``), does not exist (or ``overwrite``) and its directory exists and is
+    writable; otherwise a CLIError naming ``what``. Checked before any work is done."""
     if path is None:
         return None
     p = Path(path)
     if p.suffix.lower() != suffix:
         raise CLIError(f"{what} {p}: must end in {suffix}")
+    if p.is_dir():
+        raise CLIError(f"{what} {p} is a directory; give a file name ending in {suffix}")
+    for src in inputs:
+        if _same_file(p, Path(src)):
+            raise CLIError(f"{what} {p} is the input {src}; write the results to another file")
     if p.exists() and not overwrite:
         raise CLIError(f"{what} {p} exists; pass --overwrite to replace it")
     parent = p.parent if str(p.parent) else Path(".")
@@ -30,7 +59,7 @@ def check_output(path: str | None, suffix: str, overwrite: bool, what: str) -> P
     return p
 
 
-def check_plus_output(path: str, overwrite: bool, what: str) -> Path:
+def check_plus_output(path: str, overwrite: bool, what: str, inputs: tuple = ()) -> Path:
     """A PLUS output (``.mha``, ``.seq.mha``, or ``.mhd`` with its ``.zraw``): checked like
     every output, the data file next to an ``.mhd`` included."""
     from ..io._metaimage import plus_outputs
@@ -39,8 +68,7 @@ def check_plus_output(path: str, overwrite: bool, what: str) -> Path:
     if suffix not in (".mha", ".mhd"):
         raise CLIError(f"{what} {path}: a PLUS sequence file must end in .mha or .mhd "
                        "(e.g. NAME.seq.mha)")
-    first = check_output(path, suffix, overwrite, what)
+    first = check_output(path, suffix, overwrite, what, inputs)
     for extra in plus_outputs(first)[1:]:
-        if extra.exists() and not overwrite:
-            raise CLIError(f"{what} {extra} exists; pass --overwrite to replace it")
+        check_output(str(extra), extra.suffix.lower(), overwrite, what, inputs)
     return first

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._common import CLIError
+from ._common import CLIError, seed
 
 
 def add_parser(sub) -> None:
@@ -15,7 +15,7 @@ def add_parser(sub) -> None:
                                    "an overlay animation.")
     p.add_argument("--out", default="needlenet-demo",
                    help="report directory (default: needlenet-demo)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--overwrite", action="store_true", help="replace an existing report")
     p.add_argument("--quiet", action="store_true", help="less progress output")
     p.set_defaults(func=run)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import sys
 
-from ._common import CLIError, check_output
+from ._common import CLIError, check_output, seed
 
 
 def add_parser(sub) -> None:
@@ -30,7 +30,7 @@ def add_parser(sub) -> None:
     p.add_argument("--repeat", type=int, default=None,
                    help="repetitions (seeds seed..seed+N-1; default 100 ideal, 3 images, "
                         "1 volume-motion)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--model", default=None, help="ONNX model instead of the shipped one")
     p.add_argument("--quick", action="store_true", help="short runs (under about a minute)")
     p.add_argument("--json", default=None, help="write the rows to this .json")

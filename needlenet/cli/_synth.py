@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._common import CLIError, check_output, check_plus_output
+from ._common import CLIError, check_output, check_plus_output, seed
 
 
 def add_parser(sub) -> None:
@@ -20,7 +20,7 @@ def add_parser(sub) -> None:
                         "ProbeToReference and NeedleTipToReference transforms); default: by "
                         "the --out suffix")
     p.add_argument("--frames", type=int, help="number of frames (default: the paper's protocol)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="random seed (default 0)")
     p.add_argument("--cr", type=float, help="contrast ratio to reach (Zhao 2013 eq. 9)")
     p.add_argument("--background", choices=["homogeneous", "inhomogeneous"])
     p.add_argument("--speed", type=float, help="insertion speed, mm/s")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from ._common import CLIError, check_output, check_plus_output
+from ._common import CLIError, check_output, check_plus_output, seed
 
 
 def add_parser(sub) -> None:
@@ -51,7 +51,7 @@ def add_parser(sub) -> None:
                    help="wait up to S seconds for an OpenIGTLink client before tracking")
     p.add_argument("--realtime", action="store_true",
                    help="pace the frames at their timestamps (for watching a stream live)")
-    p.add_argument("--seed", type=int, default=0, help="seed of randomised methods")
+    p.add_argument("--seed", type=seed, default=0, help="seed of randomised methods")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="a tracker parameter: a field of InplaneParams, VolumeTrackerParams "
                         "or AxialParams (e.g. intensity_threshold=70, image_refine=false, "
@@ -88,17 +88,28 @@ def run(args) -> int:
 
 
 def _check_outputs(args):
-    """The checked ``--json``, ``--overlay`` and ``--out-plus`` paths (None where not given)."""
-    out_json = check_output(args.json_out, ".json", args.overwrite, "--json")
+    """The checked ``--json``, ``--overlay`` and ``--out-plus`` paths (None where not given);
+    none of them may be the recording read (or the data file next to its header)."""
+    inputs = _input_files(args.file)
+    out_json = check_output(args.json_out, ".json", args.overwrite, "--json", inputs)
     overlay = None
     if args.overlay:
         suffix = Path(args.overlay).suffix.lower()
         if suffix not in (".gif", ".mp4", ".avi"):
             raise CLIError(f"--overlay {args.overlay}: use .gif, .mp4 or .avi")
-        overlay = check_output(args.overlay, suffix, args.overwrite, "--overlay")
+        overlay = check_output(args.overlay, suffix, args.overwrite, "--overlay", inputs)
     out_plus = None if args.out_plus is None else \
-        check_plus_output(args.out_plus, args.overwrite, "--out-plus")
+        check_plus_output(args.out_plus, args.overwrite, "--out-plus", inputs)
     return out_json, overlay, out_plus
+
+
+def _input_files(path: str) -> tuple[Path, ...]:
+    """The recording and the files it reads beside it (an .mhd's or .nhdr's data file)."""
+    p = Path(path)
+    out = [p]
+    if p.suffix.lower() in (".mhd", ".nhdr"):
+        out += [p.with_suffix(s) for s in (".raw", ".zraw", ".raw.gz")]
+    return tuple(out)
 
 
 def _check_method(args) -> None:
@@ -142,6 +153,8 @@ def _load(args):
                              fps=args.fps)
     except (RecordingError, synth.SequenceFileError) as exc:
         raise CLIError(str(exc)) from None
+    for note in seq.meta.get("warnings", []):
+        print(f"needlenet: warning: {note}", file=sys.stderr)
     if seq.meta.get("format") == "plus" and args.spacing is None and \
             np.allclose(seq.spacing_mm, 1.0):
         print(f"needlenet: note: {args.file} says ElementSpacing = 1 (PLUS's default, pixels); "
@@ -232,8 +245,11 @@ def _report(args, seq, estimates, out_json, overlay, out_plus) -> None:
     summary["status_counts"] = {s: statuses.count(s) for s in sorted(set(statuses))}
     print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}, indent=1))
     if out_json is not None:
-        out_json.write_text(json.dumps({"frames": [e.to_json() for e in estimates],
-                                        "summary": summary}, indent=1, default=float))
+        from ..io._atomic import atomic_write
+
+        text = json.dumps({"frames": [e.to_json() for e in estimates], "summary": summary},
+                          indent=1, default=float)
+        atomic_write({out_json: lambda fh: fh.write(text.encode())}, overwrite=True)
         print(f"wrote {out_json}")
     if overlay is not None:
         from ..io import write_overlay

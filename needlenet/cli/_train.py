@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._common import CLIError, check_output
+from ._common import CLIError, check_output, seed
 
 _TRAIN_EXTRA = ("needs the training extra (torch, lightning, onnx): "
                 "pip install torch==2.13.0 && pip install 'needlenet[train]'")
@@ -33,7 +33,7 @@ def add_train_parser(sub) -> None:
     p.add_argument("model", help="inplane, axial or volume")
     p.add_argument("--steps", type=int, help="optimisation steps (default: the shipped recipe)")
     p.add_argument("--out", help="output directory (default runs/MODEL)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--workers", type=int, default=2,
                    help="data-generating processes (default 2: the trainer itself needs little)")
     p.add_argument("--accelerator", default="cpu", choices=("cpu", "gpu", "auto"),

@@ -144,6 +144,46 @@ def test_outputs_are_checked_before_work(sitk_file, tmp_path, capsys):
     assert read_plus(out).n_frames == 12
 
 
+def test_an_input_a_directory_or_a_bad_seed_is_refused_before_work(sitk_file, tmp_path,
+                                                                    capsys):
+    """Issue 21: ``--out-plus`` naming the input replaced it (and its labels) even with
+    --overwrite; an output path that is a directory failed after the whole run; a negative
+    seed was a traceback."""
+    rec = tmp_path / "rec.seq.mha"
+    rec.write_bytes(sitk_file.read_bytes())
+    track = ["track", str(rec), "--tracker", "inplane", "--method", "kf", "--quiet"]
+    assert main([*track, "--out-plus", str(rec), "--overwrite"]) == 2
+    _one_line_error(capsys, "--out-plus", "is the input", "write the results to another file")
+    assert rec.read_bytes() == sitk_file.read_bytes()
+    for option, name in (("--json", "d.json"), ("--overlay", "d.gif"),
+                         ("--out-plus", "d.seq.mha")):
+        (tmp_path / name).mkdir()
+        assert main([*track, option, str(tmp_path / name), "--overwrite"]) == 2
+        _one_line_error(capsys, f"{option} ", f"{name} is a directory")
+    for cmd in (["synth", "inplane", "--out", str(tmp_path / "s.npz")], track):
+        with pytest.raises(SystemExit) as exc:
+            main([*cmd, "--seed", "-1"])
+        assert exc.value.code == 2
+        assert "argument --seed: -1 is outside 0 to 2^63 - 1" in capsys.readouterr().err
+
+
+def test_reading_notes_are_printed_as_warnings(seq, tmp_path, capsys):
+    """A NaN pixel in a float recording is shown black and reported; tracking goes on."""
+    img = sitk.GetImageFromArray(seq.images.astype(np.float32) * 0.01)
+    img.SetSpacing((float(seq.spacing_mm[1]), float(seq.spacing_mm[0]), 1.0))
+    path = tmp_path / "f.seq.mha"
+    sitk.WriteImage(img, str(path))
+    data = sitk.GetArrayFromImage(sitk.ReadImage(str(path)))
+    data[3, 5, 7] = np.nan
+    out = sitk.GetImageFromArray(data)
+    out.CopyInformation(img)
+    sitk.WriteImage(out, str(path))
+    assert main(["track", str(path), "--tracker", "inplane", "--fps", "20", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "needlenet: warning: " in err and "1 pixels in 1 frames (first: frame 3) are not " \
+        "finite numbers" in err
+
+
 def test_igtl_port_in_use_and_no_client(sitk_file, capsys):
     track = ["track", str(sitk_file), "--tracker", "inplane", "--method", "kf", "--quiet"]
     with socket.socket() as s:
