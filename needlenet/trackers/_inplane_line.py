@@ -11,10 +11,13 @@ segment's end away from the entry, refined by the tip map where the source has o
 constant-velocity Kalman filter on the tip's (x, z) smooths it between frames. A segment that
 runs across the imaged region from edge to edge shows no tip (a bright tissue interface, or a
 needle whose tip has left the view, or the edge of a capture margin or sector mask) and is not
-taken for one. Nor is a segment floating in the tissue (neither end at the edge of the view)
-once a needle has been seen entering through that edge, unless it lies on that needle's axis
-(the same needle, partly out of the plane): a needle goes in along its axis, and a new one
-comes in through the skin or the side of the view, so a floating line elsewhere is tissue.
+taken for one; nor is a segment whose deeper end, where a needle's tip would be, lies at that
+edge (the tip is out of view). A needle comes in through the skin or the side of the view
+and goes in along its axis, so a segment floating in the tissue (its entry end away from the
+edge of the view) is never taken for a new needle, and once a needle has been tracked it is
+taken only on that needle's axis (the same needle, partly out of the plane). The edge of the
+view is the edge of the frame, of a black capture margin or of a sector mask; a black vessel
+inside the image is tissue.
 
 Which end is the tip. A needle goes in from the skin (the top of the image) or from beyond a
 side edge and goes deeper as it advances, so of a segment that descends by more than
@@ -80,10 +83,9 @@ class LineTrackerParams:
     ``edge_margin_mm``: a segment whose two ends both lie this close to the edge of the imaged
     region runs across the image and shows no tip (an interface, or a needle whose tip is out
     of view; so is the edge of a capture margin or sector mask): no needle.
-    ``entry_margin_mm``: a segment with an end this close to that edge enters through it, as
-    an inserted needle does, and is preferred to one floating in the tissue; once one has been
-    tracked, a floating segment must lie within ``track_window_deg``/``track_window_mm`` of its
-    axis.
+    ``entry_margin_mm``: a segment whose entry end lies this close to that edge (along the
+    line or straight) enters through it, as an inserted needle does; a floating one is taken
+    only within ``track_window_deg``/``track_window_mm`` of a needle tracked before.
     ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
     not read (the mask's step is no echo)."""
 
@@ -259,41 +261,78 @@ class LineTracker(Tracker):
         return eroded[kz:-kz, kx:-kx] > 0
 
     def _validity(self, frame: Frame, inner: np.ndarray):
-        """Two functions of a segment, from the distances of its ends to the edge of the region
-        ``inner`` (where evidence is read), outwards along the line:
+        """Two functions of a segment, from where its ends lie against the edge of the region
+        ``inner`` (where evidence is read):
 
         - the test it must pass to be a needle whose tip is in view: it must not run across
-          the region from edge to edge (both ends within ``edge_margin_mm``): that is an
-          interface, a mask's edge, or a needle whose tip is out of view;
-        - its priority: 1 when one end lies within ``entry_margin_mm`` of the edge (the needle
-          comes in through the skin or the side of the view, as an insertion's does), else 0
-          (a segment floating in the tissue: a tissue line, or a needle partly out of plane).
+          the region from edge to edge (both ends within ``edge_margin_mm`` of the edge,
+          outwards along the line): that is an interface, a mask's edge, or a needle whose
+          tip is out of view; nor may its deeper end, where a needle's tip would be, lie
+          there; and a segment floating in the tissue is taken only on the axis of a needle
+          seen entering (see the module's doc);
+        - its priority: 1 when it enters through the edge (its shallower end within
+          ``entry_margin_mm`` of the edge, along the line or straight: a shallow needle comes
+          in through the skin a few millimetres along its own line from the top of the
+          view), else 0.
         """
         p = self.params
         reach = max(p.edge_margin_mm, p.entry_margin_mm) + 1.0
+        sin_min = np.sin(np.deg2rad(p.orientation_min_angle_deg))
         cache: dict = {}
+        straight: list = []
 
-        def ends(seg: NeedleLine) -> tuple[float, float]:
+        def straight_mm(point: np.ndarray) -> float:
+            """Distance (mm) from ``point`` to the edge of ``inner`` in any direction."""
+            if not straight:  # once per frame, only when a segment asks
+                padded = np.pad(inner.astype(np.uint8), 1)
+                straight.append(cv2.distanceTransform(padded, cv2.DIST_L2, 3)[1:-1, 1:-1])
+            r, c = np.rint(frame.grid.points_to_index(point[None])[0]).astype(int)
+            h, w = inner.shape
+            if not (0 <= r < h and 0 <= c < w):
+                return 0.0
+            return float(straight[0][r, c]) * float(np.mean(frame.grid.spacing_mm))
+
+        def ends(seg: NeedleLine) -> tuple[float, float, float]:
+            """(start's and end's distance outwards along the line, the entry end's distance
+            along the line or straight, whichever is less); the entry is the shallower end of
+            a descending segment, either end of a near-horizontal one."""
             key = (*seg.start_mm, *seg.end_mm)
             if key not in cache:
-                cache[key] = (
-                    _distance_to_edge(inner, frame, seg.start_mm, -seg.direction, max_mm=reach),
-                    _distance_to_edge(inner, frame, seg.end_mm, seg.direction, max_mm=reach))
+                a = _distance_to_edge(inner, frame, seg.start_mm, -seg.direction, max_mm=reach)
+                b = _distance_to_edge(inner, frame, seg.end_mm, seg.direction, max_mm=reach)
+                d = seg.direction
+                if abs(d[1]) < sin_min:
+                    entry = min(a, b, straight_mm(seg.start_mm), straight_mm(seg.end_mm))
+                elif d[1] > 0:
+                    entry = min(a, straight_mm(seg.start_mm))
+                else:
+                    entry = min(b, straight_mm(seg.end_mm))
+                cache[key] = (a, b, entry)
             return cache[key]
 
+        def enters(seg: NeedleLine) -> bool:
+            return ends(seg)[2] <= p.entry_margin_mm
+
         def check(seg: NeedleLine) -> str:
-            a, b = ends(seg)
+            a, b, _ = ends(seg)
             if a <= p.edge_margin_mm and b <= p.edge_margin_mm:
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line runs across the "
                         "image from edge to edge")
-            if self._axis is not None and min(a, b) > p.entry_margin_mm and \
-                    not _on_line(seg, *self._axis, p.track_window_deg, p.track_window_mm):
-                return (f"the {seg.length_mm:.0f} mm line floats in the tissue off the axis of "
-                        "the needle seen entering")
+            d = seg.direction
+            if abs(d[1]) >= sin_min and (b if d[1] > 0 else a) <= p.edge_margin_mm:
+                return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's deeper end, "
+                        "where a needle's tip would be, lies at the edge of the view")
+            if not enters(seg):
+                if self._axis is None:
+                    return (f"the {seg.length_mm:.0f} mm line floats in the tissue; a needle is "
+                            "first taken where it enters through the edge of the view")
+                if not _on_line(seg, *self._axis, p.track_window_deg, p.track_window_mm):
+                    return (f"the {seg.length_mm:.0f} mm line floats in the tissue off the axis "
+                            "of the needle seen entering")
             return ""
 
         def priority(seg: NeedleLine) -> int:
-            return int(min(ends(seg)) <= p.entry_margin_mm)
+            return int(enters(seg))
 
         return check, priority
 
@@ -519,12 +558,18 @@ def _sample_frame(values: np.ndarray, frame: Frame, pts: np.ndarray) -> np.ndarr
 
 def _imaged_region(frame: Frame) -> np.ndarray:
     """Where the frame holds an image: not black capture margin or outside a sector. A pixel
-    is imaged when more than a fifth of the pixels within 1 mm are non-zero (dark speckle has
-    isolated zeros; a margin is zero throughout)."""
+    is blank when at most a fifth of the pixels within 1 mm are non-zero (dark speckle has
+    isolated zeros; a margin is zero throughout), and a blank area is margin only where it
+    reaches the frame's border: a black vessel or cyst inside the image is imaged tissue."""
     im = np.asarray(frame.image)
     dz, dx = frame.grid.spacing_mm
     k = (max(int(round(1.0 / dx)) | 1, 3), max(int(round(1.0 / dz)) | 1, 3))
-    return cv2.blur((im > 0).astype(np.float32), k) > 0.2
+    valid = cv2.blur((im > 0).astype(np.float32), k) > 0.2
+    if valid.all():
+        return valid
+    n, labels = cv2.connectedComponents((~valid).astype(np.uint8), connectivity=4)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    return ~np.isin(labels, border[border > 0])
 
 
 def _distance_to_edge(valid: np.ndarray, frame: Frame, start: np.ndarray,

@@ -196,3 +196,50 @@ def test_a_line_from_edge_to_edge_shows_no_tip(sector):
         assert (est.status == Status.TRACKING) == needle, est.extras.get("reason")
         if not needle:
             assert "edge to edge" in est.extras["reason"]
+
+
+def _line_map(h, w, p0, p1, width=1):
+    """A shaft map (h, w) that is 0.9 on the pixel line from p0 to p1 ((row, col))."""
+    import cv2
+
+    shaft = np.zeros((h, w), np.float32)
+    cv2.line(shaft, (int(p0[1]), int(p0[0])), (int(p1[1]), int(p1[0])), 0.9, width)
+    return shaft
+
+
+@pytest.mark.parametrize("p0, p1, tracked, reason", [
+    ((0, 150), (90, 60), True, None),  # enters through the top: a needle, its tip inside
+    ((110, 150), (199, 60), False, "deeper end"),  # its tip would lie at the bottom edge
+    ((60, 150), (150, 60), False, "floats in the tissue"),  # neither end at an edge
+])
+def test_where_a_line_ends_decides_whether_it_is_a_needle(p0, p1, tracked, reason):
+    """A needle comes in through the edge of the view and its tip (the deeper end) lies in
+    the image; a line whose deeper end lies at the edge shows no tip, and a line floating in
+    the tissue is not taken for a new needle."""
+    h, w = 200, 200
+    image = np.random.default_rng(6).integers(40, 120, (h, w)).astype(np.uint8)
+    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
+    tr = LineTracker(features=_MapSource(_line_map(h, w, p0, p1, width=3)))
+    est = tr.update(Frame(image=image, grid=g, t=0.0))
+    assert (est.status == Status.TRACKING) == tracked, est.extras.get("reason")
+    if reason:
+        assert reason in est.extras["reason"]
+
+
+def test_a_black_vessel_inside_the_image_is_no_edge_of_the_view():
+    """An anechoic (all-zero) disc inside the image is tissue, not a capture margin: a line
+    that ends beside it still floats in the tissue; a black margin at the frame's border is
+    an edge the needle may enter through."""
+    import cv2
+
+    h, w = 200, 200
+    image = np.random.default_rng(7).integers(40, 120, (h, w)).astype(np.uint8)
+    cv2.circle(image, (160, 40), 18, 0, -1)  # a black vessel, centre (row 40, col 160)
+    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
+    shaft = _line_map(h, w, (62, 140), (150, 60), width=3)  # starts 4 px below the vessel
+    est = LineTracker(features=_MapSource(shaft)).update(Frame(image=image, grid=g, t=0.0))
+    assert est.status != Status.TRACKING and "floats in the tissue" in est.extras["reason"]
+    image[:, 185:] = 0  # a capture margin on the right; the line now starts at its edge
+    shaft = _line_map(h, w, (30, 184), (120, 94), width=3)
+    est = LineTracker(features=_MapSource(shaft)).update(Frame(image=image, grid=g, t=0.0))
+    assert est.status == Status.TRACKING, est.extras.get("reason")
