@@ -5,7 +5,7 @@ Public API (for ``needlenet servo``, ``bench servo`` and ``demo``)
 ------------------------------------------------------------------
 ``servo_rows(scenario, *, filters=("pv", "prv"), gains=("dynamic", "constant"),
 features=("ideal",), runs=("misalignment", "motion"), repeats=None, seed=0, model=None,
-quick=False, progress=None, traces=None) -> list[dict]``
+quick=False, progress=None, traces=None, fault=None) -> list[dict]``
     One row per configuration. ``scenario="servo"`` (Ye): configurations features x filter x
     gain; features ``"ideal"`` (section 4.1's noisy measurement, Table 2; 100 repeats by
     default), ``"learned"`` (the shipped axial ONNX model, or ``model``) or ``"classical"``
@@ -21,7 +21,10 @@ quick=False, progress=None, traces=None) -> list[dict]``
     on the calibration worlds; ~0), ``echo_threshold`` (the calibrated acceptance level),
     ``latency_median_ms, latency_p99_ms`` (per cycle without imaging),
     ``latency_with_imaging_median_ms, latency_with_imaging_p99_ms``, ``setup_s``,
-    ``safety_stops``, ``frames``, ``repeats``, ``seed`` and Ye's figures as ``paper_*``.
+    ``safety_stops``, ``stops`` (each stop's ``reason``: ``needle_lost``, ``never_found``,
+    ``stale_feed``, ``stuck_detector`` or ``unconfirmed_travel``, its ``time_s`` and, with a
+    fault, ``since_fault_s`` and ``travel_since_fault_mm``), ``frames``, ``repeats``,
+    ``seed`` and Ye's figures as ``paper_*``.
     ``scenario="volume-motion"`` (Chatelain): configurations features (``"classical"``,
     ``"learned"``) x runs (``"misalignment"``: 40 degrees; ``"motion"``: moving phantom); keys
     ``features, run, rest_err_x_mm, rest_err_z_mm, rest_err_theta_deg`` (the estimated
@@ -29,6 +32,9 @@ quick=False, progress=None, traces=None) -> list[dict]``
     ``initial_theta_deg, rmse_p_mm, in_plane_fraction`` (cycles with the tip inside the
     volume), ``tracked_fraction``, the same latency keys, ``paper_rest_err_*``.
     ``quick=True`` shortens every run (all rows of a scenario in about a minute).
+    ``fault`` (``FAULTS``: ``frozen-feed``, ``stuck-detector``, ``needle-lost``,
+    ``never-found``) is injected half way through every run (the insertion's half for
+    Chatelain) to exercise the watchdogs.
     ``progress(done, total, label)`` after each run; ``traces`` (a list) receives a
     :class:`ClosedLoopResult` per configuration (its first repeat) for plots.
     Bad options raise ``ValueError`` naming the value before any loop runs.
@@ -75,7 +81,9 @@ from ._images import (
 )
 from ._plot import plot_runs
 from ._ye import (
+    FAULTS,
     YE_TABLE2,
+    Fault,
     MassDamperAxis,
     Measurement,
     PositionPD,
@@ -89,7 +97,8 @@ from ._ye import (
 )
 
 __all__ = [
-    "CALIBRATION_SEEDS", "CHATELAIN_REST", "FEATURES_2D", "FEATURES_3D", "FILTERS", "GAINS",
+    "CALIBRATION_SEEDS", "CHATELAIN_REST", "FAULTS", "FEATURES_2D", "FEATURES_3D", "FILTERS",
+    "Fault", "GAINS",
     "RUNS_3D", "SCENARIOS", "YE_TABLE2", "ChatelainConfig", "ClosedLoopResult",
     "CrossSectionDetector", "DetectorCalibration", "EchoThreshold", "MassDamperAxis",
     "Measurement", "PositionPD", "ServoImaging", "ServoWorld", "SpeedGain", "VelocityPI",

@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._chatelain import CHATELAIN_REST, ChatelainConfig, run_chatelain
-from ._ye import YE_TABLE2, YeServoConfig, run_ye
+from ._ye import FAULTS, YE_TABLE2, Fault, YeServoConfig, run_ye
 
 __all__ = ["SCENARIOS", "ClosedLoopResult", "run_closed_loop", "servo_rows", "check_options",
-           "FILTERS", "GAINS", "FEATURES_2D", "FEATURES_3D", "RUNS_3D"]
+           "FILTERS", "GAINS", "FEATURES_2D", "FEATURES_3D", "RUNS_3D", "FAULTS", "stops"]
 
 SCENARIOS = ("servo", "volume-motion")
 FILTERS = ("pv", "prv")
@@ -125,8 +125,16 @@ class _YeImages:
         return self.worlds[seed]
 
 
+def stops(runs: list[dict]) -> list[dict]:
+    """Every safety stop of ``runs``: its cause, the simulated time of the stop and, with a
+    fault, the time and the probe's travel since the fault began."""
+    keep = ("reason", "time_s", "fault", "since_fault_s", "travel_since_fault_mm")
+    return [{"seed": int(r["seed"]), **{k: e[k] for k in keep if k in e}}
+            for r in runs for e in r["events"] if e["event"] == "safety_stop"]
+
+
 def _ye_run(filt: str, gain: str, features: str, seed: int, n_samples: int,
-            images: _YeImages | None) -> dict:
+            images: _YeImages | None, fault: str | None = None) -> dict:
     from ._images import ServoImaging, image_measurement, in_slice
 
     if features == "ideal":
@@ -134,7 +142,8 @@ def _ye_run(filt: str, gain: str, features: str, seed: int, n_samples: int,
         # gate: with the ideal +-2 mm measurement the gate rejects the PV filter's lagging
         # updates on a curving tip and it diverges on some seeds (P-hat 1.5 mm instead of
         # 0.2 on 4 of 10 seeds measured); the image loops keep it (outlier detections)
-        r = run_ye(filt, gain, n_samples, seed, gating=False, adaptive=True)
+        r = run_ye(filt, gain, n_samples, seed, gating=False, adaptive=True,
+                   fault=None if fault is None else Fault(fault))
         # the ideal run has no scanner: the slice is the servo world's (probe 10 mm above
         # the tip's start, as in the image runs)
         probe = r["probe"] - np.array([0.0, 0.0, ServoImaging().tip_depth_mm])
@@ -149,7 +158,7 @@ def _ye_run(filt: str, gain: str, features: str, seed: int, n_samples: int,
     cfg = dataclasses.replace(YeServoConfig(), probe_z_mm=world.probe_z,
                               adaptive_floor_fraction=floor)
     r = run_ye(filt, gain, n_samples, seed, gating=True, adaptive=True, config=cfg,
-               measure=image_measurement(world, det))
+               measure=image_measurement(world, det), fault=None if fault is None else Fault(fault))
     r["in_plane"] = in_slice(r["tip"], r["probe"], world.scanner.params)
     r["setup_s"], r["reach_mm"] = world.setup_s, cal.reach_mm
     t = cal.echo_threshold  # plain data for the rows (JSON)
@@ -177,7 +186,7 @@ def _ye_row(runs: list[dict], filt: str, gain: str, features: str, seed: int) ->
         "latency_with_imaging_median_ms": float(np.median(lat_img)),
         "latency_with_imaging_p99_ms": float(np.percentile(lat_img, 99)),
         "setup_s": float(np.mean([r["setup_s"] for r in runs])),
-        "safety_stops": int(sum(r["stopped"] for r in runs)),
+        "safety_stops": int(sum(r["stopped"] for r in runs)), "stops": stops(runs),
         "frames": int(len(runs[0]["tip"])), "repeats": len(runs), "seed": int(seed),
         "paper_rmse_p_mm": paper["rmse_P"], "paper_rmse_vx_mm_s": paper["rmse_vx"],
         "paper_rmse_pux_mm": paper["rmse_pux"], "paper_rmse_puy_mm": paper["rmse_puy"],
@@ -211,7 +220,7 @@ def _chatelain_row(runs: list[dict], features: str, run: str, seed: int) -> dict
         "latency_median_ms": float(np.median(lat)), "latency_p99_ms": float(np.percentile(lat, 99)),
         "latency_with_imaging_median_ms": float(np.median(lat_img)),
         "latency_with_imaging_p99_ms": float(np.percentile(lat_img, 99)),
-        "safety_stops": int(sum(r["stopped"] for r in runs)),
+        "safety_stops": int(sum(r["stopped"] for r in runs)), "stops": stops(runs),
         "frames": int(len(runs[0]["t"])), "repeats": len(runs), "seed": int(seed),
         "paper_rest_err_x_mm": CHATELAIN_REST["x_mm"],
         "paper_rest_err_z_mm": CHATELAIN_REST["z_mm"],
@@ -235,13 +244,17 @@ def _trackers(features, model, seed):
 
 def servo_rows(scenario: str, *, filters=FILTERS, gains=GAINS, features=("ideal",),
                runs=RUNS_3D, repeats: int | None = None, seed: int = 0, model=None,
-               quick: bool = False, progress=None, traces: list | None = None) -> list[dict]:
+               quick: bool = False, progress=None, traces: list | None = None,
+               fault: str | None = None) -> list[dict]:
     """One row per configuration (see the package docstring); repeats use seeds seed ..
     seed + repeats - 1. ``progress(done, total, label)`` is called after each run;
     ``traces``, when a list, receives the :class:`ClosedLoopResult` of each configuration's
-    first repeat."""
+    first repeat. ``fault`` (one of :data:`FAULTS`) is injected half way through every run;
+    each row's ``stops`` lists the safety stops (cause, time since the fault, travel)."""
     filters, gains, features, runs = (tuple(x) for x in (filters, gains, features, runs))
     check_options(scenario, filters, gains, features, repeats, model, seed)
+    if fault is not None and fault not in FAULTS:
+        raise ValueError(f"unknown fault {fault!r}; choose one of {', '.join(FAULTS)}")
     rows: list[dict] = []
     if scenario == "servo":
         n = _QUICK_SAMPLES if quick else _N_SAMPLES
@@ -256,7 +269,7 @@ def servo_rows(scenario: str, *, filters=FILTERS, gains=GAINS, features=("ideal"
             for c in configs:
                 if i >= reps[c[2]]:
                     continue
-                results[c].append(_ye_run(c[0], c[1], c[2], seed + i, n, images))
+                results[c].append(_ye_run(c[0], c[1], c[2], seed + i, n, images, fault))
                 done += 1
                 if progress is not None:
                     progress(done, total, f"{c[2]} {c[1]}-{c[0]} seed {seed + i}")
@@ -276,7 +289,8 @@ def servo_rows(scenario: str, *, filters=FILTERS, gains=GAINS, features=("ideal"
             res = []
             for i in range(reps):
                 res.append(run_chatelain(run, ft, seed + i, config=cfg,
-                                         tracker=_trackers(ft, model, seed + i)))
+                                         tracker=_trackers(ft, model, seed + i),
+                                         fault=None if fault is None else Fault(fault)))
                 done += 1
                 if progress is not None:
                     progress(done, total, f"{ft} {run} seed {seed + i}")
@@ -299,17 +313,21 @@ def _chatelain_trace(r: dict) -> ClosedLoopResult:
 
 def run_closed_loop(scenario: str, *, filter: str = "prv", gain: str = "dynamic",
                     features: str = "learned", run: str = "misalignment", seed: int = 0,
-                    model=None, quick: bool = False) -> ClosedLoopResult:
-    """One closed-loop run with its per-cycle trace (for plots and the demo)."""
+                    model=None, quick: bool = False,
+                    fault: str | None = None) -> ClosedLoopResult:
+    """One closed-loop run with its per-cycle trace (for plots and the demo); ``fault`` as in
+    :func:`servo_rows`."""
     t0 = time.perf_counter()
     if scenario == "servo":
         check_options(scenario, (filter,), (gain,), (features,), 1, model, seed)
         n = _QUICK_SAMPLES if quick else _N_SAMPLES
         images = None if features == "ideal" else _YeImages(n, model)
-        res = _ye_trace(_ye_run(filter, gain, features, seed, n, images))
+        res = _ye_trace(_ye_run(filter, gain, features, seed, n, images, fault))
     else:
         check_options(scenario, (), (), (features,), 1, model, seed)
-        res = _chatelain_trace(run_chatelain(run, features, seed, config=_chatelain_config(quick),
-                                             tracker=_trackers(features, model, seed)))
+        res = _chatelain_trace(run_chatelain(
+            run, features, seed, config=_chatelain_config(quick),
+            tracker=_trackers(features, model, seed),
+            fault=None if fault is None else Fault(fault)))
     res.raw["wall_s"] = time.perf_counter() - t0
     return res

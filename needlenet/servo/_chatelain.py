@@ -26,8 +26,12 @@ does not say how; without it the constant-velocity model would see the probe's m
 needle's).
 
 Safety (section 5 of Ye asks for it; Chatelain is silent): per-axis velocity and acceleration
-limits on v_c, and a latched stop when the needle has not been tracked for longer than
-``lost_timeout_s``; it is logged in ``events``, never raised.
+limits on v_c; a volume identical to the previous one (the feed repeating itself) is not given
+to the tracker, and an estimate identical to the previous one to the last bit (a tracker stuck
+at a stale position; a live volume's speckle moves every estimate) is no measurement; the
+probe holds still until a needle is tracked; and a latched stop when the needle has not been
+tracked for ``lost_timeout_s`` (``needle_lost``, or ``stale_feed`` / ``stuck_detector`` when
+every one of those cycles was a repeat); it is logged in ``events``, never raised.
 
 Runs: ``"misalignment"`` (Chatelain Fig. 5: insertion with the needle 40 degrees off the probe's
 X axis, then the operator stops; the feature error at rest is the paper's 1.10 mm in X, 0.23 mm
@@ -43,6 +47,9 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..trackers._base import NeedleEstimate, Status
+from ._ye import Fault
 
 __all__ = ["ChatelainConfig", "chatelain_features", "control_velocity", "interaction_matrix",
            "move_probe", "run_chatelain", "CHATELAIN_REST"]
@@ -191,10 +198,13 @@ def _limit(v: np.ndarray, v_prev: np.ndarray, vmax: np.ndarray, amax: np.ndarray
 
 def run_chatelain(run: str = "misalignment", features: str = "classical", seed: int = 0, *,
                   config: ChatelainConfig | None = None, model=None, tracker=None,
-                  lost_from_cycle: int | None = None, threads: int = 1) -> dict:
+                  fault: Fault | None = None, threads: int = 1) -> dict:
     """One closed-loop run of Chatelain's 3D visual servoing; returns per-cycle arrays,
-    metrics and events. ``lost_from_cycle``: from this cycle on the volumes hold no needle
-    (to exercise the safety stop). Arrays (probe frame unless said): ``t``, ``s_true`` and
+    metrics and events. ``fault``: a :class:`~needlenet.servo.Fault` from a cycle on
+    (``needle-lost``/``never-found``: the volumes hold no needle; ``frozen-feed``: the volume
+    of the cycle before repeats; ``stuck-detector``: the tracker's last estimate repeats), to
+    exercise the watchdogs; a stop's event then holds ``since_fault_s`` and
+    ``travel_since_fault_mm``. Arrays (probe frame unless said): ``t``, ``s_true`` and
     ``s_hat`` (n, 3) features (X mm, Z mm, Theta rad), ``tip_true``, ``tip_hat`` (n, 3),
     ``probe`` (n, 3) the probe's position (world), ``probe_yaw_deg`` (n,), ``tip_world``
     (n, 3), ``tracking`` (n,) bool, ``in_volume`` (n,) bool, ``v_c`` (n, 3),
@@ -220,7 +230,10 @@ def run_chatelain(run: str = "misalignment", features: str = "classical", seed: 
     s_star = np.array([0.0, 0.0, 0.0])  # eq. (24): X_C = Z_C = 0 is the volume's centre
     vmax = np.array([cfg.v_limit_mm_s, cfg.v_limit_mm_s, math.radians(cfg.w_limit_deg_s)])
     amax = np.array([cfg.a_limit_mm_s2, cfg.a_limit_mm_s2, math.radians(cfg.alpha_limit_deg_s2)])
-    lost_limit = int(math.floor(cfg.lost_timeout_s * cfg.volume_rate_hz))
+    lost_limit = max(int(math.ceil(cfg.lost_timeout_s * cfg.volume_rate_hz - 1e-9)), 1)
+    if fault is not None:
+        fault = fault.at(int(0.5 * t_ins / dt))
+    start = None if fault is None else fault.start
 
     from ..features._base import Frame
 
@@ -236,6 +249,10 @@ def run_chatelain(run: str = "misalignment", features: str = "classical", seed: 
     pose = np.eye(4)
     v_prev = np.zeros(3)
     misses = 0
+    repeats = 0  # consecutive cycles whose volume or estimate repeated the previous one
+    stuck = 0  # ... whose estimate did
+    previous_img = None
+    last_est = None
     ever_tracked = False
     stopped = False
     n_limited = 0
@@ -246,13 +263,29 @@ def run_chatelain(run: str = "misalignment", features: str = "classical", seed: 
         tp = _tissue_pose(cfg, geo, t, run)
         inv = invert_rigid(pose)
         pts_w, tan_w, _ = scanner.world.needle_world(s_tip, tp, step)
-        if lost_from_cycle is not None and k >= lost_from_cycle:
+        faulty = start is not None and k >= start
+        if faulty and fault.kind in ("needle-lost", "never-found"):
             pts_w, tan_w = pts_w[:0], tan_w[:0]
         pts = apply_transform(inv, pts_w)
-        img = scanner.render(inv @ tp, pts, tan_w @ inv[:3, :3].T, rng, step).image
+        if faulty and fault.kind == "frozen-feed" and previous_img is not None:
+            img = previous_img
+        else:
+            img = scanner.render(inv @ tp, pts, tan_w @ inv[:3, :3].T, rng, step).image
         c1 = time.perf_counter()
         imaging[k] = (c1 - c0) * 1e3
-        est = tracker.update(Frame(img, grid, t=float(t), index=k, probe_pose=pose))
+        frozen = previous_img is not None and np.array_equal(img, previous_img)
+        previous_img = img
+        if frozen:  # the feed repeats itself: nothing new to measure
+            est = NeedleEstimate(t=float(t), status=Status.LOST)
+        elif faulty and fault.kind == "stuck-detector" and last_est is not None:
+            est = last_est
+        else:
+            est = tracker.update(Frame(img, grid, t=float(t), index=k, probe_pose=pose))
+        repeated = (not frozen and last_est is not None and est.tip_mm is not None
+                    and est.status.value == "tracking"
+                    and np.array_equal(est.tip_mm, last_est.tip_mm))
+        if est.status.value == "tracking" and est.tip_mm is not None:
+            last_est = est
         # truth: tip and direction in the probe frame
         tip_w = scanner.world.needle_path.point_at(s_tip)
         tip_w = apply_transform(scanner.world.needle_to_world(tp), tip_w[None])[0]
@@ -263,10 +296,12 @@ def run_chatelain(run: str = "misalignment", features: str = "classical", seed: 
         out["s_true"][k] = chatelain_features(tip_p, inv[:3, :3] @ u_w)
         out["probe"][k] = pose[:3, 3]
         yaw[k] = math.degrees(math.atan2(pose[1, 0], pose[0, 0]))
-        in_volume[k] = bool(grid.contains(tip_p[None])[0]) and (
-            lost_from_cycle is None or k < lost_from_cycle)
-        ok = est.status.value == "tracking" and est.tip_mm is not None
+        in_volume[k] = bool(grid.contains(tip_p[None])[0]) and not (
+            faulty and fault.kind in ("needle-lost", "never-found"))
+        ok = est.status.value == "tracking" and est.tip_mm is not None and not repeated
         tracking[k] = ok
+        repeats = repeats + 1 if (frozen or repeated) else 0
+        stuck = stuck + 1 if repeated else 0
         if ok:
             ever_tracked = True
             misses = 0
@@ -277,10 +312,17 @@ def run_chatelain(run: str = "misalignment", features: str = "classical", seed: 
         else:
             misses += ever_tracked
             v = np.zeros(3)  # nothing seen: slow down to rest (within the limits)
-        if not stopped and ever_tracked and misses > lost_limit:
+        if not stopped and ever_tracked and misses >= lost_limit:
             stopped = True
-            events.append({"event": "safety_stop", "reason": "needle_lost", "cycle": k,
-                           "time_s": float(t), "lost_for_s": misses * dt})
+            reason = "needle_lost" if repeats < misses else (
+                "stuck_detector" if stuck >= misses else "stale_feed")
+            ev = {"event": "safety_stop", "reason": reason, "cycle": k, "time_s": float(t),
+                  "lost_for_s": misses * dt}
+            if start is not None:
+                ev.update(fault=fault.kind, since_fault_s=float(t - t_arr[start]),
+                          travel_since_fault_mm=float(np.linalg.norm(
+                              pose[:3, 3] - out["probe"][start])))
+            events.append(ev)
         if stopped:
             v = np.zeros(3)
         v, limited = _limit(v, v_prev, vmax, amax, dt)

@@ -379,11 +379,16 @@ def make_detector(features: str, model=None, radius_mm: float = 0.635, threads: 
 def image_measurement(world: ServoWorld, detector: CrossSectionDetector):
     """The ``measure`` callback of :func:`run_ye` for frames imaged from the probe's pose."""
     grid = world.grid
+    previous: list = [None]
 
     def measure(k: int, probe_xyz: np.ndarray) -> Measurement:
         t0 = time.perf_counter()
         img = world.image(k, probe_xyz)
         t1 = time.perf_counter()
+        if previous[0] is not None and np.array_equal(img, previous[0]):
+            # a live scanner's frames differ (speckle, noise): this one is the feed repeating
+            return Measurement(False, None, t1 - t0, stale=True)
+        previous[0] = img
         found, xz, _ = detector.detect(img, grid)
         if not found:
             # a needle echo rejected only by the level test: the shaft, ahead or far behind

@@ -48,10 +48,24 @@ ultrasound probe to be located behind the tip most of the time", so the ratio is
 ``behind_fraction`` is the fraction of frames with the probe behind.
 
 Safety (section 5 asks for it; not in the paper's simulation): per-cycle velocity and
-acceleration limits on each probe axis (the PI stops integrating while limited), and a latched
-stop when no needle has been seen in the image (detected, or for images a shaft seen) for longer
-than ``lost_timeout_s``: the X reference
-becomes 0 and Y holds its position; the stop is logged in ``events``, never raised.
+acceleration limits on each probe axis (the PI stops integrating while limited); K_e bounded
+by ``max_gain`` (eq. (13) grows 1.01**t2 without end while the needle is seen); and watchdogs
+that latch a stop (the X reference becomes 0 and Y holds its position; logged in ``events``,
+never raised):
+
+- a stale measurement is no measurement: a frame the feed repeats (the image identical to the
+  previous one) or a detection identical to the previous one to the last bit (a detector
+  stuck at a stale position; a live image's detection moves with its speckle);
+- ``needle_lost`` / ``never_found``: no needle seen in the image (detected, or for images a
+  shaft seen) for ``lost_timeout_s``, after having seen one or from the start;
+  ``stale_feed`` / ``stuck_detector``: the same, every one of those frames a repeated frame
+  or a repeated detection;
+- ``unconfirmed_travel``: the probe has moved ``max_unconfirmed_travel_mm`` since the last
+  fresh detection (the image loops' innovation gate rejects a detection inconsistent with
+  the prediction from the EKF's update, but the probe may follow the needle through a
+  stretch of rejections: up to 6.7 mm in nominal image runs).
+
+Faults (:class:`Fault`) replace the measurement from a frame on, to exercise each watchdog.
 """
 
 from __future__ import annotations
@@ -76,6 +90,8 @@ from ..backends._kalman import chi2_gate
 __all__ = [
     "YE_TABLE2",
     "MassDamperAxis",
+    "FAULTS",
+    "Fault",
     "Measurement",
     "PositionPD",
     "SpeedGain",
@@ -335,10 +351,11 @@ class SpeedGain:
     ``"constant"`` (Vrooijink 2013, the "ICRA" baseline): 0.5 without, 1.05 with.
     """
 
-    def __init__(self, kind: str = "dynamic"):
+    def __init__(self, kind: str = "dynamic", max_gain: float = math.inf):
         if kind not in ("dynamic", "constant"):
             raise ValueError(f"gain must be 'dynamic' or 'constant', got {kind!r}")
         self.kind = kind
+        self.max_gain = float(max_gain)  # the dynamic law's ceiling (ours; see YeServoConfig)
         self.t1 = 0  # consecutive frames not detected
         self.t2 = 0  # consecutive frames detected
 
@@ -349,7 +366,7 @@ class SpeedGain:
             self.t1, self.t2 = self.t1 + 1, 0
         if self.kind == "constant":
             return 1.05 if detected else 0.5
-        return 1.01**self.t2 if detected else 0.8**self.t1
+        return min(1.01**self.t2, self.max_gain) if detected else 0.8**self.t1
 
 
 # --------------------------------------------------------------------------- simulation
@@ -366,6 +383,61 @@ class Measurement(NamedTuple):
     z: np.ndarray | None = None
     imaging_s: float = 0.0
     shaft_seen: bool = False
+    stale: bool = False  # the feed repeated its last frame: no measurement at all
+
+
+FAULTS = ("frozen-feed", "stuck-detector", "needle-lost", "never-found")
+
+
+@dataclass(frozen=True)
+class Fault:
+    """A fault in the measurement from frame ``frame`` on: ``frozen-feed`` (the feed repeats
+    the frame before: the same measurement again), ``stuck-detector`` (the detector reports
+    the needle at its last detection whatever the image shows), ``needle-lost`` (no needle in
+    the image) or ``never-found`` (none from the first frame; ``frame`` is ignored).
+    ``frame=None``: the loop's own choice, the middle of the run (Ye) or of the insertion
+    (Chatelain), when the needle is tracked."""
+
+    kind: str
+    frame: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.kind not in FAULTS:
+            raise ValueError(f"fault must be one of {', '.join(FAULTS)}, got {self.kind!r}")
+        if self.frame is not None and self.frame < 0:
+            raise ValueError(f"fault frame must be >= 0, got {self.frame}")
+
+    def at(self, default_frame: int) -> Fault:
+        """This fault with ``frame`` set (``default_frame`` where it was None)."""
+        return self if self.frame is not None else replace(self, frame=int(default_frame))
+
+    @property
+    def start(self) -> int:
+        return 0 if self.kind == "never-found" else int(self.frame or 0)
+
+    def wrap(self, measure: Callable[[int, np.ndarray], Measurement]):
+        """``measure`` with the fault from :attr:`start` on."""
+        last: list = [None, None]  # the last measurement, the last detection's z
+
+        def faulty(k: int, probe_xyz: np.ndarray) -> Measurement:
+            if k < self.start:
+                m = measure(k, probe_xyz)
+                last[0] = m
+                if m.detected and m.z is not None:
+                    last[1] = np.asarray(m.z, float).copy()
+                return m
+            if self.kind in ("needle-lost", "never-found"):
+                return Measurement(False)
+            if self.kind == "frozen-feed":  # the same frame again, its time not advancing
+                m = last[0] if last[0] is not None else Measurement(False)
+                return m._replace(stale=True)
+            if last[1] is None:  # stuck before any detection: reports nothing
+                return Measurement(False)
+            z = last[1].copy()
+            z[0] = probe_xyz[0]  # z_x is the probe's position (section 4.2); y, z stuck
+            return Measurement(True, z)
+
+        return faulty
 
 
 @dataclass(frozen=True)
@@ -394,6 +466,12 @@ class YeServoConfig:
     v_limit_mm_s: float | None = 50.0
     a_limit_mm_s2: float | None = 1e4
     lost_timeout_s: float = 1.0
+    # K_e's ceiling: eq. (13) reaches 1.23 at most over Table 2's 20 nominal runs; a detector
+    # that never lets go had driven it to 1e6 and the probe to the velocity limit
+    max_gain: float = 1.5
+    # the probe's travel in X-Y since the last fresh detection that stops the loop (nominal
+    # runs, ideal and imaged: at most 0.31 mm, the plane passing the tip and waiting for it)
+    max_unconfirmed_travel_mm: float = 1.5
     gate_probability: float = 0.997
     adaptive_window: int = 50
     # adaptive R never below this fraction of the smallest initial R (AdaptiveNoise's floor);
@@ -415,18 +493,19 @@ class YeServoConfig:
 
 def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, seed: int = 0,
            gating: bool = False, adaptive: bool = False, *,
-           config: YeServoConfig | None = None, lost_from_frame: int | None = None,
+           config: YeServoConfig | None = None, fault: Fault | None = None,
            measure: Callable[[int, np.ndarray], Measurement] | None = None) -> dict:
     """Simulate Ye 2025's tracking; returns per-frame arrays, Table 2 metrics and events.
 
-    ``lost_from_frame``: from this frame on the needle is never detected (image lost), to
-    exercise the safety stop. ``measure(k, probe_xyz)``: the measurement of frame k with the
-    probe at ``probe_xyz`` (world, mm), a :class:`Measurement`; ``None`` is section 4.2's
-    ideal noisy measurement. Arrays: ``tip`` (n, 3), ``tip_velocity`` (n, 3), ``estimate``
-    (n, 3) and ``vx_hat`` (n,), the EKF's posterior at each frame; ``probe`` (n, 3) at each
-    frame; ``detected``, ``accepted`` (n,) bool; ``K_e`` (n,); ``v_in`` (n,);
-    ``latency_ms`` (n,), the wall time of each cycle (measurement, EKF, control) without the
-    scanner's imaging time, and ``imaging_ms`` (n,), that imaging time.
+    ``measure(k, probe_xyz)``: the measurement of frame k with the probe at ``probe_xyz``
+    (world, mm), a :class:`Measurement`; ``None`` is section 4.2's ideal noisy measurement.
+    ``fault``: a :class:`Fault` injected into that measurement. Arrays: ``tip`` (n, 3),
+    ``tip_velocity`` (n, 3), ``estimate`` (n, 3) and ``vx_hat`` (n,), the EKF's posterior at
+    each frame; ``probe`` (n, 3) at each frame; ``detected``, ``accepted``, ``stale`` (n,)
+    bool; ``K_e`` (n,); ``v_in`` (n,); ``latency_ms`` (n,), the wall time of each cycle
+    (measurement, EKF, control) without the scanner's imaging time, and ``imaging_ms`` (n,),
+    that imaging time. A safety stop's event holds its ``reason``, ``frame`` and ``time_s``,
+    and with a fault ``since_fault_s`` and ``travel_since_fault_mm`` (X-Y).
     """
     cfg = YeServoConfig() if config is None else config
     if filter not in ("pv", "prv"):
@@ -454,54 +533,87 @@ def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, see
     ax_y = MassDamperAxis(cfg.m, cfg.b, integrator=cfg.integrator, dt_s=dt_c)
     pi = VelocityPI(ax_x, cfg.kp1, cfg.ki, cfg.steps_per_frame, vl, al)
     pd = PositionPD(ax_y, cfg.kp2, cfg.kd, cfg.steps_per_frame, vl, al)
-    ke = SpeedGain(gain)
-    lost_limit = int(math.floor(cfg.lost_timeout_s * fs))
-    unseen = 0  # consecutive frames without any needle in the image
+    ke = SpeedGain(gain, cfg.max_gain)
+    lost_limit = max(int(math.ceil(cfg.lost_timeout_s * fs - 1e-9)), 1)
+
+    if measure is None:
+        def measure(k: int, probe_xyz: np.ndarray) -> Measurement:
+            # section 4.2: detected iff the plane is behind the tip
+            return Measurement(bool(probe_xyz[0] < tip[k, 0]), np.array(
+                [probe_xyz[0], tip[k, 1] + noise[k, 0], tip[k, 2] + noise[k, 1]]))
+    if fault is not None:
+        fault = fault.at(n // 2)
+        measure = fault.wrap(measure)
 
     est = np.empty((n, 3))
     vx_hat = np.empty(n)
     probe = np.zeros((n, 3))
     detected = np.zeros(n, bool)
     accepted = np.zeros(n, bool)
+    stale = np.zeros(n, bool)
     K_e = np.empty(n)
     events: list[dict] = []
     stopped = False
     y_hold = 0.0
     latency = np.zeros(n)
     imaging = np.zeros(n)
+    unseen = 0  # consecutive frames without any needle in the image
+    stale_run = 0  # consecutive stale frames
+    stuck_run = 0  # consecutive frames whose detection repeats the last one
+    found = False  # a needle has been detected
+    last_yz = None  # the last detection's (z_y, z_z)
+    confirmed_at = np.zeros(2)  # the probe's X-Y at the last fresh detection
     for k in range(n):
         t_cycle = time.perf_counter()
         probe[k, 0], probe[k, 1], probe[k, 2] = ax_x.p, ax_y.p, cfg.probe_z_mm
-        if measure is None:  # section 4.2: detected iff the plane is behind the tip
-            det = bool(ax_x.p < tip[k, 0])
-            z = np.array([ax_x.p, tip[k, 1] + noise[k, 0], tip[k, 2] + noise[k, 1]])
-        else:
-            m = measure(k, probe[k].copy())
-            det, z, imaging[k] = bool(m.detected), m.z, m.imaging_s * 1e3
-        det = det and (lost_from_frame is None or k < lost_from_frame)
+        m = measure(k, probe[k].copy())
+        imaging[k] = m.imaging_s * 1e3
+        z = None if m.z is None else np.asarray(m.z, float)
+        repeat = z is not None and last_yz is not None and np.array_equal(z[1:], last_yz)
+        if z is not None and m.detected:
+            last_yz = z[1:].copy()
+        stale[k] = m.stale or (m.detected and repeat)
+        stuck_run = stuck_run + 1 if (m.detected and repeat and not m.stale) else 0
+        det = bool(m.detected) and not stale[k]
+        shaft = bool(m.shaft_seen) and not stale[k]
         if k > 0:
             ekf.predict(v_in[k - 1])
-        if (measure is not None and not det and m.shaft_seen
-                and (lost_from_frame is None or k < lost_from_frame)
-                and ekf.x[0] - ax_x.p > cfg.behind_margin_mm):
+        if not det and shaft and ekf.x[0] - ax_x.p > cfg.behind_margin_mm:
             # the shaft crosses a plane well behind the predicted tip: detected for eq. (13),
             # but z_x = probe X would drag the estimate back, so no update
             det, z = True, None
         detected[k] = det
         if det and z is not None:
-            accepted[k] = ekf.update(np.asarray(z, float)).accepted
+            accepted[k] = ekf.update(z).accepted
+        if det:
+            confirmed_at = probe[k, :2].copy()
+        found = found or det
         est[k] = ekf.x[:3]
         vx_hat[k] = model.velocity(ekf.x, v_in[k])[0]
         K_e[k] = ke.update(det)
         # lost: no needle in the image at all (a shaft seen with the plane at the tip is the
         # loop working, not a loss)
-        seen = det or (measure is not None and m.shaft_seen
-                       and (lost_from_frame is None or k < lost_from_frame))
-        unseen = 0 if seen else unseen + 1
-        if not stopped and unseen > lost_limit:
-            stopped, y_hold = True, ax_y.p
-            events.append({"event": "safety_stop", "reason": "needle_lost", "frame": k,
-                           "time_s": k / fs, "lost_for_s": unseen / fs})
+        unseen = 0 if (det or shaft) else unseen + 1
+        stale_run = stale_run + 1 if stale[k] else 0
+        if not stopped:
+            reason = None
+            if unseen >= lost_limit:
+                if stale_run >= unseen:
+                    reason = "stuck_detector" if stuck_run >= unseen else "stale_feed"
+                else:
+                    reason = "needle_lost" if found else "never_found"
+            elif np.linalg.norm(probe[k, :2] - confirmed_at) > cfg.max_unconfirmed_travel_mm:
+                reason = "unconfirmed_travel"
+            if reason is not None:
+                stopped, y_hold = True, ax_y.p
+                ev = {"event": "safety_stop", "reason": reason, "frame": k, "time_s": k / fs,
+                      "lost_for_s": unseen / fs}
+                if fault is not None:
+                    ev["fault"] = fault.kind
+                    ev["since_fault_s"] = (k - fault.start) / fs
+                    ev["travel_since_fault_mm"] = float(
+                        np.linalg.norm(probe[k, :2] - probe[fault.start, :2]))
+                events.append(ev)
         if stopped:
             pi.run(0.0)
             pd.run(y_hold)
@@ -524,7 +636,8 @@ def run_ye(filter: str = "pv", gain: str = "dynamic", n_samples: int = 2000, see
         "behind_fraction": float(behind.mean()),
     }
     return {"tip": tip, "tip_velocity": tip_v, "estimate": est, "vx_hat": vx_hat,
-            "probe": probe, "detected": detected, "accepted": accepted, "K_e": K_e,
+            "probe": probe, "detected": detected, "accepted": accepted, "stale": stale,
+            "K_e": K_e,
             "v_in": v_in, "metrics": metrics, "events": events, "stopped": stopped,
             "filter": filter, "gain": gain, "seed": seed, "latency_ms": latency,
             "imaging_ms": imaging}
