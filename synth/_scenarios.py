@@ -92,6 +92,21 @@ def _check_positive(name: str, v) -> None:
         raise ValueError(f"{name} must be positive, got {v}")
 
 
+MAX_FRAME_PIXELS = 1 << 24  # 4096 x 4096: beyond any scanner's frame
+
+
+def _check_frame_size(p) -> None:
+    """A 2D scenario's frame (width and depth over the pixel spacing) must stay within
+    :data:`MAX_FRAME_PIXELS`: a 1e-6 mm spacing asks for 10^15 pixels."""
+    sp, w, d = (getattr(p, k, None) for k in ("spacing_mm", "width_mm", "depth_mm"))
+    if not all(isinstance(v, (int, float)) for v in (sp, w, d)):
+        return
+    pixels = (w / sp) * (d / sp)
+    if pixels > MAX_FRAME_PIXELS:
+        raise ValueError(f"spacing_mm={sp:g} over {w:g} x {d:g} mm makes frames of {pixels:.3g} "
+                         f"pixels (at most {MAX_FRAME_PIXELS}); use a coarser spacing_mm")
+
+
 def _check_cr(cr) -> None:
     if cr is not None and (not np.isfinite(cr) or not 1.05 <= cr <= 10.0):
         raise ValueError(f"cr (contrast ratio, Zhao eq. 9) must be in [1.05, 10], got {cr}")
@@ -132,6 +147,7 @@ class _Base:
                 _check_positive(f.name, v)
         _check_positive("scatterers_per_cell", self.scatterers_per_cell)
         _check_positive("dynamic_range_db", self.dynamic_range_db)
+        _check_frame_size(self)
 
     def imaging(self) -> ImagingParams:
         return self._with_overrides(ImagingParams(

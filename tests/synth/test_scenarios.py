@@ -171,3 +171,10 @@ def test_bicycle_path_is_an_arc_with_a_turn():
     # after the 180-degree bevel rotation the curvature flips: the slope starts to decrease
     t = path.tangent_at(np.array([39.0, 41.0, 60.0]))
     assert t[1, 0] > t[2, 0]
+
+
+@pytest.mark.parametrize("name", ["inplane", "axial", "servo"])
+def test_a_spacing_that_makes_absurd_frames_is_refused_before_allocating(name):
+    """Issue 21: ``synth inplane --param spacing_mm=1e-6`` had reached 7.5 GB."""
+    with pytest.raises(ValueError, match=r"spacing_mm=1e-06 over .* makes frames of .* pixels"):
+        synth.generate(name, seed=0, frames=2, spacing_mm=1e-6)
