@@ -279,18 +279,11 @@ class LineTracker(Tracker):
         reach = max(p.edge_margin_mm, p.entry_margin_mm) + 1.0
         sin_min = np.sin(np.deg2rad(p.orientation_min_angle_deg))
         cache: dict = {}
-        straight: list = []
 
         def straight_mm(point: np.ndarray) -> float:
-            """Distance (mm) from ``point`` to the edge of ``inner`` in any direction."""
-            if not straight:  # once per frame, only when a segment asks
-                padded = np.pad(inner.astype(np.uint8), 1)
-                straight.append(cv2.distanceTransform(padded, cv2.DIST_L2, 3)[1:-1, 1:-1])
-            r, c = np.rint(frame.grid.points_to_index(point[None])[0]).astype(int)
-            h, w = inner.shape
-            if not (0 <= r < h and 0 <= c < w):
-                return 0.0
-            return float(straight[0][r, c]) * float(np.mean(frame.grid.spacing_mm))
+            """Distance (mm) from ``point`` to the edge of ``inner`` in any direction (up to
+            ``reach``)."""
+            return _distance_to_edge_around(inner, frame, point, max_mm=reach)
 
         def ends(seg: NeedleLine) -> tuple[float, float, float]:
             """(start's and end's distance outwards along the line, the entry end's distance
@@ -570,6 +563,25 @@ def _imaged_region(frame: Frame) -> np.ndarray:
     n, labels = cv2.connectedComponents((~valid).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     return ~np.isin(labels, border[border > 0])
+
+
+_AROUND = np.stack([np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False)),
+                    np.sin(np.linspace(0, 2 * np.pi, 24, endpoint=False))], -1)
+
+
+def _distance_to_edge_around(valid: np.ndarray, frame: Frame, point: np.ndarray,
+                             step_mm: float = 0.2, max_mm: float = 200.0) -> float:
+    """How far (mm) from ``point`` the imaged region ends in the nearest of 24 directions."""
+    s = np.arange(0.0, max_mm, step_mm)
+    pts = point[None, None] + s[None, :, None] * _AROUND[:, None, :]  # (24, S, 2)
+    idx = np.rint(frame.grid.points_to_index(pts.reshape(-1, 2))).astype(int)
+    h, w = valid.shape
+    inside = (idx[:, 0] >= 0) & (idx[:, 0] < h) & (idx[:, 1] >= 0) & (idx[:, 1] < w)
+    ok = np.zeros(len(idx), bool)
+    ok[inside] = valid[idx[inside, 0], idx[inside, 1]]
+    out = ~ok.reshape(len(_AROUND), len(s)).all(axis=0)  # some direction is outside
+    first = np.flatnonzero(out)
+    return float(s[first[0]]) if first.size else float(max_mm)
 
 
 def _distance_to_edge(valid: np.ndarray, frame: Frame, start: np.ndarray,
