@@ -23,7 +23,7 @@ x = p_n along it.
 
 The search finds the brightest line echo, which for a needle is its upper wall (the lower one
 is hidden by the reverberations): the needle's centre line lies ``axis_offset_mm`` further
-along v_p, a calibration stored with the tip weights (see :mod:`._mathiassen_fit`).
+along v_p, a calibration stored with the tip weights (see ``training/mathiassen_fit.py``).
 """
 
 from __future__ import annotations
@@ -629,12 +629,12 @@ def weights_path() -> Path:
 
 
 def load_tip_weights(path: str | Path | None = None) -> TipWeights:
-    """Read the weights of h(x) written by ``python -m needlenet.features._mathiassen_fit``."""
+    """Read the weights of h(x) written by ``python -m training.mathiassen_fit``."""
     path = weights_path() if path is None else Path(path)
     if not path.is_file():
         raise FileNotFoundError(
             f"Mathiassen tip weights not found at {path}; create them with "
-            "`python -m needlenet.features._mathiassen_fit`")
+            "`python -m training.mathiassen_fit`")
     data = json.loads(path.read_text())
     w = np.asarray(data.get("weights", []), dtype=float)
     if w.shape != (N_FEATURES,) or not np.all(np.isfinite(w)):

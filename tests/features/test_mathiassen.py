@@ -265,7 +265,7 @@ def test_weight_file_has_five_weights_and_its_command():
     w = load_tip_weights()
     assert w.weights.shape == (5,) and np.all(np.isfinite(w.weights))
     np.testing.assert_allclose(np.linalg.norm(w.weights), 1.0, rtol=1e-6)
-    assert doc["command"] == "python -m needlenet.features._mathiassen_fit"
+    assert doc["command"] == "python -m training.mathiassen_fit"
     assert doc["seeds"] == [1000, 1001, 1002, 1003, 1004, 1005]
     assert sorted(map(tuple, doc["combos_angle_deg_speed_mm_s"])) == [
         (35.0, 5.0), (35.0, 10.0), (35.0, 15.0), (45.0, 5.0), (45.0, 10.0), (45.0, 15.0)]
@@ -276,7 +276,7 @@ def test_weight_file_has_five_weights_and_its_command():
 
 
 def test_missing_weight_file_says_how_to_make_it(tmp_path):
-    with pytest.raises(FileNotFoundError, match="_mathiassen_fit"):
+    with pytest.raises(FileNotFoundError, match="mathiassen_fit"):
         load_tip_weights(tmp_path / "none.json")
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"weights": [1.0, 2.0]}))

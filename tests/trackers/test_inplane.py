@@ -188,7 +188,7 @@ def test_construction_errors(tmp_path):
         InplaneTracker("kalman")
     with pytest.raises(ValueError, match="expected_angle_deg"):
         InplaneTracker("om", expected_angle_deg=85.0)
-    with pytest.raises(FileNotFoundError, match="_mathiassen_fit"):
+    with pytest.raises(FileNotFoundError, match="mathiassen_fit"):
         InplaneTracker("om", weights=tmp_path / "missing.json")
     with pytest.raises(ValueError, match="keep_contrast"):
         InplaneParams(detect_contrast=1.0, keep_contrast=2.0)

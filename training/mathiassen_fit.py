@@ -1,6 +1,6 @@
 """Fit the weights w of Mathiassen 2017's tip function h(x) = w^T E(x) (eq. 6).
 
-Run ``python -m needlenet.features._mathiassen_fit`` to rewrite
+Run ``python -m training.mathiassen_fit`` to rewrite
 ``needlenet/data/mathiassen_weights.json`` (a few minutes of CPU, deterministic: the same
 command gives the same file).
 
@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._mathiassen import (
+from needlenet.features._mathiassen import (
     MathiassenParams,
     estimate_axis,
     tip_features,
@@ -47,7 +47,7 @@ from ._mathiassen import (
 
 __all__ = ["FitConfig", "fit", "training_data", "main"]
 
-COMMAND = "python -m needlenet.features._mathiassen_fit"
+COMMAND = "python -m training.mathiassen_fit"
 FEATURE_NAMES = ["E1 grayscale", "E2 difference image (delta frames)", "E3 K^SQ",
                  "E4 K^G''", "E5 K^SQ shifted n below the axis"]
 
