@@ -56,13 +56,12 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[nn.Module, dict]:
     for k, v in state.items():
         if k.startswith("stem.0.weight"):
             width = int(v.shape[0])
-    refine = len({k.split(".")[1] for k in state if k.startswith("refine.")})
-    taps = int(state["oriented.n_taps"]) if "oriented.n_taps" in state else 0
-    tip_only = bool(int(state["tip_only"])) if "tip_only" in state else False
-    local = int(state["local.window"]) if "local.window" in state else 0
-    offset = float(state["local.offset"]) if "local.offset" in state else 1.0
-    net = build_network(hp["modality"], width, refine, taps, tip_only, local, offset)
-    net.load_state_dict(state)
+    net = build_network(hp["modality"], width)
+    try:
+        net.load_state_dict(state)
+    except RuntimeError as exc:
+        raise ValueError(f"checkpoint {path}: its network is not this version's "
+                         f"({str(exc).splitlines()[0]})") from None
     net.eval()
     return net, hp
 

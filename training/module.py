@@ -10,7 +10,7 @@ from torch import nn
 
 from needlenet.eval._auc import roc_auc
 
-__all__ = ["LikelihoodModule", "likelihood_loss", "tip_softmax_loss", "shaft_auc", "tip_error_mm",
+__all__ = ["LikelihoodModule", "likelihood_loss", "shaft_auc", "tip_error_mm",
            "peak_subpixel"]
 
 
@@ -22,22 +22,6 @@ def likelihood_loss(logits: torch.Tensor, target: torch.Tensor,
     w = w.view(1, -1, *([1] * (logits.ndim - 2)))
     weight = 1.0 + (w - 1.0) * target
     return nn.functional.binary_cross_entropy_with_logits(logits, target, weight=weight)
-
-
-def tip_softmax_loss(logits: torch.Tensor, target: torch.Tensor, visible: float = 0.6
-                     ) -> torch.Tensor:
-    """Cross-entropy between the spatial softmax of the tip logits over the whole crop and the
-    tip target normalised to a distribution, on samples whose tip is in the crop (target peak
-    at least ``visible``; zero when none is). Unlike the per-pixel BCE, which a map that
-    hedges along the whole shaft satisfies cheaply, this scores where the maximum lies
-    against every other pixel (blobs of tissue included)."""
-    tip_logit = logits[:, 1].flatten(1)
-    t = target[:, 1].flatten(1)
-    keep = t.amax(1) >= visible
-    if not bool(keep.any()):
-        return logits.sum() * 0.0
-    p = t[keep] / t[keep].sum(1, keepdim=True)
-    return -(p * torch.log_softmax(tip_logit[keep], 1)).sum(1).mean()
 
 
 def shaft_auc(prob: np.ndarray, target: np.ndarray, pos: float = 0.6, neg: float = 0.05) -> float:
@@ -74,7 +58,6 @@ class LikelihoodModule(L.LightningModule):
     def __init__(self, net: nn.Module, modality: str, spacing_mm: float, lr: float = 3e-3,
                  max_steps: int = 1000, weight_decay: float = 1e-4,
                  target_reference: str = "centerline", normalization: str = "fixed",
-                 tip_softmax_weight: float = 0.0,
                  pos_weight: tuple[float, float] = (20.0, 50.0)):
         super().__init__()
         self.save_hyperparameters(ignore=["net"])
@@ -86,13 +69,8 @@ class LikelihoodModule(L.LightningModule):
 
     def _shared_step(self, batch, stage: str):
         x, y = batch
-        logits, aux = self.net(x, return_aux=True)
-        pw = tuple(self.hparams.get("pos_weight", (20.0, 50.0)))
-        loss = likelihood_loss(logits, y, pw)
-        for a in aux:  # intermediate supervision of a refined network's first stage
-            loss = loss + likelihood_loss(a, y, pw)
-        if self.hparams.tip_softmax_weight:
-            loss = loss + self.hparams.tip_softmax_weight * tip_softmax_loss(logits, y)
+        logits = self.net(x)
+        loss = likelihood_loss(logits, y, tuple(self.hparams.get("pos_weight", (20.0, 50.0))))
         self.log(f"{stage}/loss", loss, prog_bar=stage == "train", batch_size=x.shape[0])
         return loss, logits
 

@@ -17,7 +17,6 @@ import numpy as np
 import torch
 
 from needlenet._settings import convert_setting
-from needlenet.features._resample import NORMALIZATIONS
 
 from .data import DataConfig, SynthDataModule, target_reference
 from .module import LikelihoodModule
@@ -36,11 +35,6 @@ class TrainConfig:
     steps: int = 1500
     lr: float = 3e-3
     width: int | None = None
-    refine_blocks: int = 0  # a refinement stage of this many blocks (0: none)
-    oriented_taps: int = 0  # one-sided sums along 13 directions in the refinement (0: none)
-    refine_tip_only: bool = False  # the refinement replaces only the tip, from detached inputs
-    local_window: int = 0  # input also over its local mean, window in model voxels (0: off)
-    tip_softmax_weight: float = 0.0  # weight of training.module.tip_softmax_loss (0: off)
     pos_weight: tuple[float, float] = (20.0, 50.0)  # BCE weight of positives: shaft, tip
     out_dir: str = "runs/inplane"
     val_every: int = 250
@@ -63,9 +57,6 @@ class TrainConfig:
         if self.width is not None and (not isinstance(self.width, int) or self.width < 1):
             raise ValueError(f"width must be a whole number of channels >= 1, got "
                              f"{self.width!r}")
-        if self.local_window and (self.local_window < 3 or self.local_window % 2 == 0):
-            raise ValueError(f"local_window must be 0 or odd and at least 3, got "
-                             f"{self.local_window}")
 
 
 # The shipped models: spacing and crop per modality (commands in README). The shipped in-plane
@@ -136,7 +127,7 @@ def settings_for(modality: str, items) -> dict:
 
 def config_for(modality: str, **changes) -> TrainConfig:
     """The shipped recipe for ``modality`` with ``changes``: fields of :class:`TrainConfig`
-    or of its :class:`DataConfig` (e.g. ``steps=500, crop=48, local_window=11``)."""
+    or of its :class:`DataConfig` (e.g. ``steps=500, crop=48, width=12``)."""
     cfg = _recipe(modality)
     _, data_fields = _settable(changes)
     data_changes = {k: changes.pop(k) for k in list(changes) if k in data_fields}
@@ -154,15 +145,11 @@ def train(config: TrainConfig) -> dict:
     torch.manual_seed(config.data.seed)
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    norm = NORMALIZATIONS[config.data.normalization]
-    net = build_network(config.modality, config.width, config.refine_blocks,
-                        config.oriented_taps, config.refine_tip_only, config.local_window,
-                        local_offset=norm["mean"] / norm["std"])  # x + offset ~ grey level
+    net = build_network(config.modality, config.width)
     module = LikelihoodModule(net, config.modality, config.data.spacing_mm, lr=config.lr,
                               max_steps=config.steps,
                               target_reference=target_reference(config.modality),
                               normalization=config.data.normalization,
-                              tip_softmax_weight=config.tip_softmax_weight,
                               pos_weight=tuple(config.pos_weight))
     dm = SynthDataModule(config.data)
     ckpt = ModelCheckpoint(dirpath=out, filename="last", save_last=False, every_n_train_steps=

@@ -165,9 +165,7 @@ def _random_bn(net):
     return net
 
 
-@pytest.mark.parametrize("modality,net", [
-    ("inplane", NeedleNet2D), ("volume", NeedleNet3D),
-    ("volume", lambda: NeedleNet3D(refine_blocks=2, oriented_taps=4, refine_tip_only=True))])
+@pytest.mark.parametrize("modality,net", [("inplane", NeedleNet2D), ("volume", NeedleNet3D)])
 def test_export_agrees_with_torch(tmp_path, modality, net):
     import onnx
     import onnxruntime as ort
@@ -223,40 +221,6 @@ def test_checkpoint_round_trip(tmp_path):
         assert torch.allclose(loaded(x), net(x))
 
 
-@pytest.mark.filterwarnings("ignore:You are trying to `self.log\\(\\)`")
-@pytest.mark.parametrize("tip_only", [False, True])
-def test_refined_network_round_trip_and_supervises_both_stages(tmp_path, tip_only):
-    """A refined network comes back from its checkpoint with its refinement stage (the
-    checkpoint names no architecture: it is read from the weights), and training supervises
-    the first stage too: the loss is the sum of both stages' losses."""
-    from training.module import LikelihoodModule, likelihood_loss
-
-    torch.manual_seed(2)
-    net = _random_bn(NeedleNet3D(width=8, refine_blocks=3, oriented_taps=2 if tip_only else 0,
-                                 refine_tip_only=tip_only)).eval()
-    mod = LikelihoodModule(net, "volume", 0.5)
-    loaded, _ = load_checkpoint(_save_checkpoint(mod, tmp_path / "c.ckpt"))
-    assert loaded.refine is not None and len(loaded.refine) == 3
-    assert bool(loaded.tip_only) == tip_only and (loaded.oriented is not None) == tip_only
-    x = torch.randn(2, 1, 16, 24, 20)
-    y = torch.rand(2, 2, 8, 12, 10)
-    with torch.no_grad():
-        assert torch.allclose(loaded(x), net(x))
-        final, aux = net(x, return_aux=True)
-        assert len(aux) == 1 and aux[0].shape == final.shape
-        loss, _ = mod._shared_step((x, y), "val")
-        expected = likelihood_loss(final, y) + likelihood_loss(aux[0], y)
-    assert torch.allclose(loss, expected)
-    if tip_only:  # the shaft is the first stage's; the tip trains nothing before it
-        assert torch.equal(final[:, 0], aux[0][:, 0])
-        net.train()
-        out, _ = net(x, return_aux=True)
-        out[:, 1].sum().backward()
-        g = net.stem[0].weight.grad
-        assert g is None or float(g.abs().sum()) == 0.0
-        assert float(net.refine_head.weight.grad.abs().sum()) > 0
-
-
 def test_volume_contrast_draws_follow_the_config():
     """The Zhao-mode share and contrast range of the volume worlds come from the config: the
     defaults keep the shipped recipe's draws (the same random stream), a narrowed range stays
@@ -283,109 +247,18 @@ def test_volume_contrast_draws_follow_the_config():
         draws(DataConfig(modality="volume", cr_range=(1.0, 3.0)))
 
 
-def test_tip_softmax_loss_scores_where_the_maximum_lies():
-    """The spatial-softmax tip loss is lowest for logits peaked at the target's tip, higher
-    for the same peak anywhere else, and zero on crops without a tip."""
-    from training.module import tip_softmax_loss
-
-    y = torch.zeros(1, 2, 8, 8, 8)
-    zz, yy, xx = torch.meshgrid(*[torch.arange(8.0)] * 3, indexing="ij")
-    y[0, 1] = torch.exp(-((zz - 3) ** 2 + (yy - 4) ** 2 + (xx - 5) ** 2) / 2)
-    at_tip = torch.zeros(1, 2, 8, 8, 8)
-    at_tip[0, 1] = 6 * y[0, 1]
-    elsewhere = torch.zeros(1, 2, 8, 8, 8)
-    elsewhere[0, 1] = 6 * torch.roll(y[0, 1], 3, dims=0)
-    assert tip_softmax_loss(at_tip, y) < tip_softmax_loss(elsewhere, y) - 1.0
-    assert tip_softmax_loss(at_tip, torch.zeros_like(y)) == 0
-
-
-@pytest.mark.parametrize("dims,taps", [(2, 3), (3, 4)])
-def test_oriented_sums_match_scipy_correlation(dims, taps):
-    """Each channel of the oriented sums is a correlation with 1/taps at k d (ahead) or
-    -k d (behind), k = 1..taps, zero outside: checked against scipy.ndimage.correlate for
-    every direction (4 in 2D, 13 in 3D) on a seeded random map of odd size."""
-    from scipy import ndimage
-
-    from training.networks import _directions, _OrientedSums
-
-    shape = (11, 9, 13)[:dims]
-    m = np.random.default_rng(4).normal(size=shape).astype(np.float32)
-    out = _OrientedSums(dims, taps)(torch.from_numpy(m)[None, None])[0].numpy()
-    dirs = _directions(dims)
-    assert out.shape == (2 * len(dirs), *shape) and len(dirs) == {2: 4, 3: 13}[dims]
-    for i, d in enumerate(dirs):
-        for j, sign in enumerate((1, -1)):
-            w = np.zeros((2 * taps + 1,) * dims)
-            for k in range(1, taps + 1):
-                w[tuple(taps + sign * k * v for v in d)] = 1.0 / taps
-            ref = ndimage.correlate(m.astype(float), w, mode="constant", cval=0.0)
-            np.testing.assert_allclose(out[2 * i + j], ref, atol=1e-5)
-
-
-@pytest.mark.parametrize("dims,window", [(2, 5), (3, 7)])
-def test_local_contrast_matches_scipy_box_means(dims, window):
-    """The second input channel is g / (box mean of g) - 1 with g = x + offset, where the box
-    mean leaves out the padding at the borders and the zero voxels outside a sector; checked
-    against scipy.ndimage.uniform_filter (zero padding, divided by the filtered masks)."""
-    from scipy import ndimage
-
-    from training.networks import _LocalContrast
-
-    rng = np.random.default_rng(5)
-    shape = (13, 11, 15)[:dims]
-    offset = 1.4
-    g = rng.uniform(0.2, 3.0, size=shape)
-    g[(slice(0, 3),) * dims] = 0.0  # outside the sector
-    x = (g - offset).astype(np.float32)
-    out = _LocalContrast(dims, window, offset)(torch.from_numpy(x)[None, None])[0].numpy()
-    assert out.shape == (2, *shape)
-    np.testing.assert_array_equal(out[0], x)  # the image itself is the first channel
-
-    def box(a):
-        return ndimage.uniform_filter(a, window, mode="constant", cval=0.0)
-
-    in_array = box(np.ones(shape))
-    mean_g = box(g) / in_array
-    inside = box((g > 0).astype(float)) / in_array
-    ref = g * inside / (mean_g + 1e-3) - 1.0
-    np.testing.assert_allclose(out[1], ref, atol=1e-4)
-    # a brighter region reads the same: the channel is a ratio
-    scaled = _LocalContrast(dims, window, offset)(torch.from_numpy(
-        (2.5 * g - offset).astype(np.float32))[None, None])[0, 1].numpy()
-    np.testing.assert_allclose(scaled[g > 0], out[1][g > 0], atol=2e-3)
-    with pytest.raises(ValueError, match="odd"):
-        _LocalContrast(dims, 6, offset)
-
-
-def test_local_contrast_network_round_trip_and_export(tmp_path):
-    """A network with the local-contrast input comes back from its checkpoint with the same
-    window and offset (read from the weights), and exports with onnxruntime agreeing."""
-    from training.module import LikelihoodModule
-
-    torch.manual_seed(3)
-    net = _random_bn(NeedleNet3D(width=8, local_window=5, local_offset=1.0)).eval()
-    loaded, _ = load_checkpoint(_save_checkpoint(LikelihoodModule(net, "volume", 0.5),
-                                                 tmp_path / "c.ckpt"))
-    assert int(loaded.local.window) == 5 and float(loaded.local.offset) == 1.0
-    x = torch.randn(1, 1, 16, 24, 20)
-    with torch.no_grad():
-        assert torch.allclose(loaded(x), net(x))
-    r = export_onnx(loaded, "volume", 0.5, tmp_path / "m.onnx", normalization="median")
-    assert r["max_abs_diff"] <= 1e-4
-
-
 def test_recipe_settings_are_read_as_their_defaults_types():
     from training.train import config_for, settings_for
 
     got = settings_for("volume", ["width=16", "cr_range=1.5, 3.0", "cr_log=true",
-                                  "normalization=fixed", "lr=0.002", "local_window=11"])
+                                  "normalization=fixed", "lr=0.002", "steps=50"])
     assert got == {"width": 16, "cr_range": (1.5, 3.0), "cr_log": True,
-                   "normalization": "fixed", "lr": 0.002, "local_window": 11}
+                   "normalization": "fixed", "lr": 0.002, "steps": 50}
     assert isinstance(got["width"], int) and isinstance(got["lr"], float)
     cfg = config_for("volume", **got)
-    assert cfg.width == 16 and cfg.local_window == 11 and cfg.lr == 0.002
+    assert cfg.width == 16 and cfg.steps == 50 and cfg.lr == 0.002
     assert cfg.data.cr_range == (1.5, 3.0) and cfg.data.cr_log
-    assert cfg.data.crop == 40 and cfg.steps == 2000  # the rest is the shipped recipe
+    assert cfg.data.crop == 40 and cfg.data.batch_size == 4  # the rest is the shipped recipe
     bad = [(["widht=16"], "did you mean width"), (["crop=4.5"], "expected an integer"),
            (["cr_range=1.5"], "expected 2 comma-separated values"), (["crop"], "NAME=VALUE"),
            (["width=8", "width=16"], "given twice"), (["cr_log=maybe"], "true or false")]
@@ -394,7 +267,7 @@ def test_recipe_settings_are_read_as_their_defaults_types():
             settings_for("volume", items)
     for changes, msg in (({"normalization": "foo"}, "normalization must be one of"),
                          ({"accelerator": "tpu"}, "accelerator must be one of"),
-                         ({"local_window": 4}, "odd"), ({"crop": 2}, "crop must be"),
+                         ({"steps": 0}, "steps"), ({"crop": 2}, "crop must be"),
                          ({"zhao_fraction": 2.0}, "zhao_fraction"),
                          ({"width": "wide"}, "width must be")):
         with pytest.raises(ValueError, match=msg):
