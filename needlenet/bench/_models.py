@@ -33,7 +33,7 @@ from ..eval._auc import roc_auc
 from ..features import Frame
 from ..features._base import FeatureSource, Likelihood
 from ..features._learned import LearnedFeatures, shipped_model_path, wall_offsets
-from ..trackers._volume import VolumeTracker
+from ..trackers.volume import VolumeTracker
 
 HELD_OUT_SEED = 20_000_000
 CASES = {

@@ -262,7 +262,7 @@ def run_volume(quick: bool = False, log=print, rows=None, tier=None, seed: int =
     """Zhao 2013: Table 2 (alpha 0/30/60/90, CR 4.7: STD of the tip error, ROI-RK vs RANSAC)
     and Table 3 (ROI-RK failure rate over CR x threshold), plus Chatelain's method, with
     classical and learned features. Headline: ``failure_rate``."""
-    from ..trackers._volume import VolumeTrackerParams
+    from ..trackers.volume import VolumeTrackerParams
 
     tier = _tier(quick, tier)
     rows = [] if rows is None else rows

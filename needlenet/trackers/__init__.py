@@ -5,7 +5,7 @@ from ._axial import AxialParams, AxialTracker
 from ._base import NeedleEstimate, Status, Tracker, frames_from_sequence
 from ._inplane import InplaneParams, InplaneTracker
 from ._registry import TRACKERS, make_tracker, tracker_class, tracker_params
-from ._volume import VolumeTracker, VolumeTrackerParams
+from .volume import VolumeTracker, VolumeTrackerParams
 
 __all__ = ["AxialParams", "AxialTracker", "InplaneParams", "InplaneTracker", "NeedleEstimate",
            "Status", "TRACKERS", "Tracker", "VolumeTracker", "VolumeTrackerParams",

@@ -14,7 +14,7 @@ __all__ = ["TRACKERS", "METHOD_TRACKERS", "DEFAULT_METHODS", "DEFAULT_FEATURES",
 # the papers' tracker of each modality (module, class, parameter class)
 TRACKERS = {
     "inplane": ("needlenet.trackers._inplane", "InplaneTracker"),
-    "volume": ("needlenet.trackers._volume", "VolumeTracker"),
+    "volume": ("needlenet.trackers.volume", "VolumeTracker"),
     "axial": ("needlenet.trackers._axial", "AxialTracker"),
 }
 # methods served by a tracker class of their own: (modality, method) -> (module, class)
@@ -72,10 +72,11 @@ def tracker_params(name: str, settings, method: str | None = None):
     """The parameter dataclass of the tracker that runs ``method`` of modality ``name``
     (``InplaneParams``, ``LineTrackerParams``, ``VolumeTrackerParams``, ``AxialParams``)
     with ``settings`` applied: ``"NAME=VALUE"`` strings (or a mapping of
-    names to text), a nested field as ``NAME.FIELD=VALUE``. Each value is read as the type
-    of the field's default (booleans as true/false, tuples as comma-separated values); the
-    dataclass then checks the result. Unknown names and unreadable values raise ValueError
-    naming them."""
+    names to text), a nested field as ``NAME.FIELD=VALUE``. A class that composes groups of
+    fields (``VolumeTrackerParams.groups``) also takes each group's fields by their own names.
+    Each value is read as the type of the field's default (booleans as true/false, tuples as
+    comma-separated values); the dataclass then checks the result. Unknown names and
+    unreadable values raise ValueError naming them."""
     tracker = tracker_class(name, method)
     cls_name = PARAMS[tracker.__name__]
     cls = getattr(importlib.import_module(tracker.__module__), cls_name)
@@ -86,29 +87,50 @@ def tracker_params(name: str, settings, method: str | None = None):
             if "=" not in item:
                 raise ValueError(f"parameter {item!r}: expected NAME=VALUE")
         pairs = [(k.strip(), v) for k, v in (item.split("=", 1) for item in settings)]
-    top: dict = {}
-    nested: dict = {}
-    fields = {f.name: f for f in dataclasses.fields(cls)}
     base = cls()
+    paths = _setting_paths(cls, base)
+    changes: dict = {}  # nested: field name -> value, or -> the changes of a nested dataclass
     for key, text in pairs:
-        head, _, rest = key.partition(".")
-        if head not in fields:
-            close = difflib.get_close_matches(head, list(fields), n=3)
+        head, *rest = key.split(".")
+        if head not in paths:
+            close = difflib.get_close_matches(head, list(paths), n=3)
             hint = f"; did you mean {', '.join(close)}?" if close else ""
             raise ValueError(f"unknown {cls_name} parameter {head!r}{hint} (parameters: "
-                             f"{', '.join(fields)})")
-        default = getattr(base, head)
-        if rest:
-            if not dataclasses.is_dataclass(default):
-                raise ValueError(f"parameter {head} has no fields ({key!r})")
-            sub = {f.name: f.type for f in dataclasses.fields(default)}
-            if rest not in sub:
-                raise ValueError(f"unknown {type(default).__name__} parameter {rest!r} of "
-                                 f"{head} (parameters: {', '.join(sorted(sub))})")
-            nested.setdefault(head, {})[rest] = convert_setting(key, text, getattr(default, rest),
-                                                                sub[rest])
-        else:
-            top[head] = convert_setting(key, text, default, fields[head].type)
-    for head, values in nested.items():
-        top[head] = dataclasses.replace(top.get(head, getattr(base, head)), **values)
-    return cls(**top)
+                             f"{', '.join(paths)})")
+        path = paths[head] + tuple(rest)
+        owner, default = base, base
+        for depth, part in enumerate(path):
+            if depth >= len(paths[head]):  # a part the user named after the field
+                done = ".".join([head, *rest[:depth - len(paths[head])]])
+                if not dataclasses.is_dataclass(default):
+                    raise ValueError(f"parameter {done} has no fields ({key!r})")
+                sub = {f.name for f in dataclasses.fields(default)}
+                if part not in sub:
+                    raise ValueError(f"unknown {type(default).__name__} parameter {part!r} of "
+                                     f"{done} (parameters: {', '.join(sorted(sub))})")
+            owner, default = default, getattr(default, part)
+        field = {f.name: f for f in dataclasses.fields(owner)}[path[-1]]
+        node = changes
+        for part in path[:-1]:
+            node = node.setdefault(part, {})
+        node[path[-1]] = convert_setting(key, text, default, field.type)
+    return cls(**{k: _replaced(getattr(base, k), v) for k, v in changes.items()})
+
+
+def _setting_paths(cls, base) -> dict[str, tuple[str, ...]]:
+    """Every name ``tracker_params`` takes at the top level of parameter class ``cls``, with
+    the path of fields it sets: the class's own fields, then the fields of each group it
+    composes (``cls.groups``) under their own names."""
+    paths = {f.name: (f.name,) for f in dataclasses.fields(cls)}
+    for group in getattr(cls, "groups", ()):
+        for f in dataclasses.fields(getattr(base, group)):
+            paths.setdefault(f.name, (group, f.name))
+    return paths
+
+
+def _replaced(value, changes):
+    """``value`` with ``changes`` applied: a nested dataclass's changed fields, at any depth."""
+    if not isinstance(changes, dict):
+        return changes
+    return dataclasses.replace(value, **{k: _replaced(getattr(value, k), v)
+                                         for k, v in changes.items()})

@@ -24,7 +24,7 @@ from needlenet.servo import (
 from needlenet.servo._api import check_options
 from needlenet.servo._images import ServoWorld
 from needlenet.trackers._axial import _below_top_edge
-from needlenet.trackers._volume import VolumeTracker
+from needlenet.trackers.volume import VolumeTracker
 
 
 @pytest.fixture(scope="module")

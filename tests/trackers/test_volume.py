@@ -1,10 +1,10 @@
 """Tests of the volume trackers: Uhercik/Zhao's RANSAC, Zhao 2013's ROI-RK and Chatelain 2013.
 
 End-to-end runs use seeded Zhao volumes (CR 4.7, 96^3, a few frames); the sequences are made
-once per module.
+once per module. The parameters are tested in test_volume_params.py, the geometry and the
+measurement's pieces in test_volume_geometry.py.
 """
 
-import math
 from dataclasses import replace
 
 import numpy as np
@@ -14,16 +14,9 @@ import synth
 from needlenet.eval._volume_metrics import evaluate_volume
 from needlenet.features._base import FeatureSource, Frame, Likelihood
 from needlenet.trackers._base import Status, frames_from_sequence
-from needlenet.trackers._volume import (
-    VolumeTracker,
-    VolumeTrackerParams,
-    _cylinder,
-    _first_run_out,
-    _needle_contrast,
-    _needle_run,
-    _run_out_distance,
-    _Volume,
-)
+from needlenet.trackers.volume import VolumeTracker, VolumeTrackerParams
+from needlenet.trackers.volume._geometry import Volume
+from needlenet.trackers.volume._placement import axis_change, image_tip
 from synth import Grid
 
 METHODS = ("ransac", "roi-rk", "chatelain")
@@ -288,145 +281,6 @@ def test_chatelain_waits_while_the_needle_runs_out_of_the_volume(margin, starts)
 
 
 # --------------------------------------------------------------------------------------------
-# Pieces
-# --------------------------------------------------------------------------------------------
-
-
-def test_needle_contrast_is_the_needle_over_the_tissue_ring():
-    # a needle three times its tissue reads 3, the tissue alone reads 1, whatever the level
-    from needlenet.backends._ransac import LineModel
-
-    grid = Grid((40, 40, 40), (0.5, 0.5, 0.5), (0.0, 0.0, 0.0))
-    x, y, z = grid.point_grids()
-    pts = np.stack(np.broadcast_arrays(x, y, z), axis=-1)
-    d = np.linalg.norm(pts[..., 1:] - np.array([10.0, 10.0]), axis=-1)  # line along x
-    p = VolumeTrackerParams()
-    axis = LineModel(np.array([5.0, 10.0, 10.0]), np.array([1.0, 0.0, 0.0]))
-    for tissue in (30.0, 60.0):
-        image = np.where(d <= 1.1, 3 * tissue, tissue).astype(np.uint8)
-        vol = _Volume(Frame(image, grid), Likelihood(image.astype(np.float32)), learned=False)
-        assert _needle_contrast(vol, axis, 0.0, 8.0, p) == pytest.approx(3.0, rel=0.05)
-        flat = np.full(grid.shape, tissue, np.uint8)
-        vol = _Volume(Frame(flat, grid), Likelihood(flat.astype(np.float32)), learned=False)
-        assert _needle_contrast(vol, axis, 0.0, 8.0, p) == pytest.approx(1.0, rel=1e-3)
-
-
-def test_run_out_distance_steps_over_dark_speckle_to_the_sector_boundary():
-    # a sector ending at a plane, with a tenth of the voxels inside it 0 (dark speckle, as in
-    # the servo's Cartesian volumes): the ray leaves the sector at the plane, not at the first
-    # zero voxel
-    grid = Grid((30, 30, 60), (0.5, 0.5, 0.5), (0.0, 0.0, 0.0))
-    rng = np.random.default_rng(7)
-    image = rng.integers(1, 200, grid.shape).astype(np.uint8)
-    image[rng.random(grid.shape) < 0.1] = 0
-    x = grid.axis_coords(2)
-    image[:, :, x > 20.0] = 0  # outside the sector beyond x = 20 mm
-    vol = _Volume(Frame(image, grid), Likelihood(image.astype(np.float32)), learned=False)
-    start, u = np.array([5.0, 7.0, 7.0]), np.array([1.0, 0.0, 0.0])
-    # the ray crosses speckle zeros before the plane: a first-zero test would stop there
-    s = np.arange(1, 60) * 0.25
-    assert (vol.sample(image, start + s[:, None] * u, order=0) == 0).any()
-    d = _run_out_distance(vol, start, u, 30.0)
-    assert abs(d - 15.0) <= 0.5  # the boundary lies between the voxel centres 20.0 and 20.5
-    assert _run_out_distance(vol, start, u, 4.0) == 4.0  # capped at max_mm
-    assert _run_out_distance(vol, start, -u, 30.0) <= 5.5  # the array's face counts as out
-    # Chatelain's insertion test: the fan of rays from a point 4 mm from the plane measures
-    # 4 mm (the +x ray; every other ray meets the plane or a face farther away)
-    trk = VolumeTracker("chatelain")
-    gap = trk._boundary_distance(vol, np.array([16.0, 7.0, 7.0]))
-    assert abs(gap - 4.0) <= 0.5
-
-
-def test_first_run_out_matches_a_loop():
-    rng = np.random.default_rng(3)
-    inside = rng.random((50, 40)) < 0.7
-    inside[5] = True  # never leaves
-    inside[6, 30:] = False  # leaves for good at 30
-    for n in (1, 2, 3, 5):
-        got = _first_run_out(inside, n)
-        for row, g in zip(inside, got, strict=True):
-            padded = np.r_[row, np.zeros(n, bool)]  # past the end counts as outside
-            want = next((i for i in range(len(row)) if not padded[i:i + n].any()), len(row))
-            assert g == want
-        assert got[5] == 40 and got[6] <= 30
-
-
-def test_cylinder_roi_matches_brute_force():
-    grid = Grid((20, 24, 28), (0.9, 0.5, 0.3), (1.0, -6.0, -4.0))
-    rng = np.random.default_rng(1)
-    image = rng.integers(0, 3, grid.shape).astype(np.uint8)  # zeros: outside the sector
-    frame = Frame(image, grid)
-    vol = _Volume(frame, Likelihood(image.astype(np.float32)), learned=False)
-    z, y, x = np.meshgrid(*[grid.axis_coords(a) for a in range(3)], indexing="ij")
-    pts = np.stack([x, y, z], -1).reshape(-1, 3)
-    for point, direction, radius, t_range in [
-        ([0.0, 0.0, 10.0], [1.0, 0.3, 0.2], 2.0, (-math.inf, math.inf)),
-        ([1.0, -2.0, 8.0], [0.1, 0.2, 1.0], 1.3, (-3.0, 5.0)),
-        ([2.0, 1.0, 9.0], [0.0, 1.0, 0.0], 2.5, (0.0, 4.0)),
-    ]:
-        u = np.asarray(direction, float) / np.linalg.norm(direction)
-        w = pts - point
-        t = w @ u
-        d = np.linalg.norm(w - t[:, None] * u, axis=1)
-        expected = np.flatnonzero((d <= radius) & (t >= t_range[0]) & (t <= t_range[1])
-                                  & (image.reshape(-1) > 0))
-        got = _cylinder(vol, point, direction, radius, t_range)
-        np.testing.assert_array_equal(np.sort(got), expected)
-
-
-def test_needle_run_bridges_small_gaps_and_picks_the_inlier_run():
-    a = np.arange(40) * 0.5
-    profile = np.zeros(40)
-    profile[2:6] = 1.0  # a bright structure crossing the axis at 1-2.5 mm
-    profile[10:20] = 1.0  # the needle, 5-9.5 mm ...
-    profile[21:30] = 1.0  # ... with a 0.5 mm gap, to 14.5 mm
-    assert _needle_run(profile, a, 0.5, 1.0, a0=6.0, a1=14.0) == 10
-    assert _needle_run(profile, a, 0.5, 1.0, a0=0.0, a1=2.0) == 2
-    assert _needle_run(np.zeros(40), a, 0.5, 1.0, 0.0, 1.0) is None
-
-
-def test_params_and_method_are_checked():
-    with pytest.raises(ValueError, match="unknown method"):
-        VolumeTracker("hough")
-    with pytest.raises(ValueError, match="max_trials"):
-        VolumeTrackerParams(max_trials=0)
-    with pytest.raises(ValueError, match="n_control_points"):
-        VolumeTrackerParams(n_control_points=4)
-    with pytest.raises(ValueError, match="roi_radius_mm"):
-        VolumeTrackerParams(roi_radius_mm=-1.0)
-    with pytest.raises(ValueError, match="threshold_percentile"):
-        VolumeTrackerParams(threshold_percentile=100.0)
-    tracker = VolumeTracker("ransac")
-    with pytest.raises(ValueError, match="3D volumes"):
-        tracker.update(Frame(np.arange(16, dtype=np.uint8).reshape(4, 4),
-                             Grid((4, 4), (1.0, 1.0), (0.0, 0.0))))
-
-
-def test_tip_window_moves_the_tip_to_the_tip_maps_peak_along_the_axis():
-    from needlenet.backends._ransac import LineModel
-    from needlenet.trackers._volume import _tip_on_map
-
-    grid = Grid((40, 40, 60), (0.5, 0.5, 0.5), (0.0, 0.0, 0.0))
-    pts = np.stack(np.meshgrid(*[grid.axis_coords(a) for a in range(3)], indexing="ij"), -1)
-    xyz = pts[..., ::-1]  # point order (x, y, z)
-    origin, u = np.array([2.0, 10.0, 10.0]), np.array([1.0, 0.0, 0.0])
-    true_tip = origin + 17.3 * u
-    tip_map = np.exp(-0.5 * (np.linalg.norm(xyz - true_tip, axis=-1) / 1.0) ** 2)
-    image = np.full(grid.shape, 50, np.uint8)
-    lk = Likelihood(shaft=np.zeros(grid.shape, np.float32), tip=tip_map.astype(np.float32))
-    vol = _Volume(Frame(image, grid), lk, learned=True)
-    line = LineModel(origin, u)
-    p = VolumeTrackerParams(tip_window_mm=3.0)
-    # the shaft's drop put the tip 1.5 mm short: the tip map's peak moves it back
-    assert _tip_on_map(vol, line, 0.0, 15.8, p) == pytest.approx(17.3, abs=0.1)
-    # no clear peak (below tip_min): the drop stands
-    weak = _Volume(Frame(image, grid), Likelihood(shaft=lk.shaft, tip=0.2 * lk.tip), True)
-    assert _tip_on_map(weak, line, 0.0, 15.8, p) == 15.8
-    # classical features carry no tip map
-    assert _Volume(Frame(image, grid), lk, learned=False).tip is None
-
-
-# --------------------------------------------------------------------------------------------
 # Learned features: the map finds the needle, the image places it
 # --------------------------------------------------------------------------------------------
 
@@ -492,33 +346,31 @@ def test_image_refinement_keeps_the_maps_depth_of_the_axis():
 
 def test_image_tip_falls_back_to_the_learned_drop_without_a_clear_change():
     from needlenet.backends._ransac import LineModel
-    from needlenet.trackers._volume import _image_tip
 
     grid, image, entry, tip, u = _needle_phantom()
     lk = Likelihood(np.zeros(grid.shape, np.float32))
     p = VolumeTrackerParams(image_tip_cap_mm=0.0)
     line = LineModel(entry, u)
-    vol = _Volume(Frame(image, grid), lk, learned=True)
-    assert _image_tip(vol, line, 0.0, 12.0, p) == pytest.approx(14.0, abs=0.2)
+    vol = Volume(Frame(image, grid), lk, learned=True)
+    assert image_tip(vol, line, 0.0, 12.0, p) == pytest.approx(14.0, abs=0.2)
     # the same line in noise alone: no change of 2.5 standard deviations; the drop stands
     flat = np.random.default_rng(6).rayleigh(20.0, grid.shape).clip(1, 255).astype(np.uint8)
-    vol = _Volume(Frame(flat, grid), lk, learned=True)
-    assert _image_tip(vol, line, 0.0, 12.0, replace(p, image_tip_min_effect=2.5)) == \
+    vol = Volume(Frame(flat, grid), lk, learned=True)
+    assert image_tip(vol, line, 0.0, 12.0, replace(p, image_tip_min_effect=2.5)) == \
         12.0 - p.tip_cap_mm
     # while tracking, the search is centred on the filter's predicted tip: a map whose drop
     # fell 10 mm short (beyond image_tip_search_mm) is mended there
-    vol = _Volume(Frame(image, grid), lk, learned=True)
-    assert abs(_image_tip(vol, line, 0.0, 4.0, p) - 14.0) > 1.0
-    assert _image_tip(vol, line, 0.0, 4.0, p, predicted=13.0) == pytest.approx(14.0, abs=0.2)
-    vol = _Volume(Frame(flat, grid), lk, learned=True)
+    vol = Volume(Frame(image, grid), lk, learned=True)
+    assert abs(image_tip(vol, line, 0.0, 4.0, p) - 14.0) > 1.0
+    assert image_tip(vol, line, 0.0, 4.0, p, predicted=13.0) == pytest.approx(14.0, abs=0.2)
+    vol = Volume(Frame(flat, grid), lk, learned=True)
     # a search that cannot start one window beyond the entry: the drop stands
-    assert _image_tip(vol, line, 0.0, 1.0, replace(p, image_tip_search_mm=1.0)) == \
+    assert image_tip(vol, line, 0.0, 1.0, replace(p, image_tip_search_mm=1.0)) == \
         1.0 - p.tip_cap_mm
 
 
 def test_image_tip_is_the_needles_end_not_a_change_of_the_tissue():
     from needlenet.backends._ransac import LineModel
-    from needlenet.trackers._volume import _axis_change, _image_tip
 
     grid, image, entry, tip, u = _needle_phantom()
     # tissue 80 gray levels brighter across the whole section from 4 to 10 mm along the
@@ -526,36 +378,20 @@ def test_image_tip_is_the_needles_end_not_a_change_of_the_tissue():
     x, y, z = grid.point_grids()
     t = (np.stack(np.broadcast_arrays(x, y, z), axis=-1) - entry) @ u
     bright = np.clip(image.astype(float) + 80.0 * ((t >= 4.0) & (t <= 10.0)), 0, 255)
-    vol = _Volume(Frame(bright.astype(np.uint8), grid),
+    vol = Volume(Frame(bright.astype(np.uint8), grid),
                   Likelihood(np.zeros(grid.shape, np.float32)), learned=True)
     line = LineModel(entry, u)
     p = VolumeTrackerParams(image_tip_cap_mm=0.0)
     raw = replace(p, image_tip_background_mm=None)
-    assert _image_tip(vol, line, 0.0, 12.0, raw) == pytest.approx(10.0, abs=0.3)
-    assert _image_tip(vol, line, 0.0, 12.0, p) == pytest.approx(14.0, abs=0.3)
+    assert image_tip(vol, line, 0.0, 12.0, raw) == pytest.approx(10.0, abs=0.3)
+    assert image_tip(vol, line, 0.0, 12.0, p) == pytest.approx(14.0, abs=0.3)
     # the needle's end is a clear change of its excess over the ring around it
     step = 0.5 * float(vol.spacing.min())
     w = int(round(p.image_tip_window_mm / step))
     a = np.arange(4.0 - w * step, 20.0 + (w + 1) * step, step)
-    k, effect = _axis_change(vol, line, a, w, p)
+    k, effect = axis_change(vol, line, a, w, p.placement)
     assert a[k] == pytest.approx(14.0, abs=0.3)
     assert effect > 2.0 * p.image_tip_min_effect
-
-
-def test_image_refinement_params_are_checked():
-    with pytest.raises(ValueError, match="image_refine_radii_mm"):
-        VolumeTrackerParams(image_refine_radii_mm=(1.5, -1.0))
-    with pytest.raises(ValueError, match="image_refine_radii_mm"):
-        VolumeTrackerParams(image_refine_radii_mm=[1.5])
-    with pytest.raises(ValueError, match="image_refine_percentile"):
-        VolumeTrackerParams(image_refine_percentile=100.0)
-    with pytest.raises(ValueError, match="image_tip_window_mm"):
-        VolumeTrackerParams(image_tip_window_mm=0.0)
-    with pytest.raises(ValueError, match="image_tip_cap_mm"):
-        VolumeTrackerParams(image_tip_cap_mm=-0.1)
-    for ring in ((3.0, 2.0), (0.0, 2.0), (2.0,), [2.0, 3.0], (2.0, math.inf)):
-        with pytest.raises(ValueError, match="image_tip_background_mm"):
-            VolumeTrackerParams(image_tip_background_mm=ring)
 
 
 class _TwoTubes(FeatureSource):
