@@ -256,9 +256,8 @@ class AxialTracker(Tracker):
                  params: AxialParams | None = None, rng: RngLike = None,
                  seed: int | None = None):
         self.params = AxialParams() if params is None else params
-        self.rng = np.random.default_rng(seed if rng is None else rng)
         self._planned_rotation_mm: float | None = None
-        super().__init__(method, features)
+        super().__init__(method, features, rng=rng, seed=seed)
 
     def run(self, seq, progress=None) -> list[NeedleEstimate]:
         """Track a :class:`synth.Sequence` from a reset. Without ``rotation_depth_mm`` in the

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..features._base import FeatureSource, Frame, FrameError, check_frame
 
-__all__ = ["Status", "NeedleEstimate", "Tracker", "frames_from_sequence"]
+__all__ = ["Status", "NeedleEstimate", "Tracker", "RngLike", "frames_from_sequence"]
 
 
 class Status(str, Enum):
@@ -50,17 +50,28 @@ class NeedleEstimate:
         return out
 
 
+RngLike = np.random.Generator | int | None
+
+
 class Tracker(ABC):
     """Base class: subclasses implement :meth:`_step`; :meth:`update` adds timing and turns a
-    frame that cannot be measured into a ``lost``/``searching`` report instead of a crash."""
+    frame that cannot be measured into a ``lost``/``searching`` report instead of a crash.
+
+    Every tracker is built as ``Tracker(method, features, *, ..., rng=None, seed=None)``:
+    ``rng`` (a generator or a seed) or ``seed`` makes its randomised parts (RANSAC samples,
+    particle filters) repeat; ``self.rng`` is that generator, for every tracker alike."""
 
     modality: str = ""
     methods: tuple[str, ...] = ()
 
-    def __init__(self, method: str, features: FeatureSource | None = None):
+    def __init__(self, method: str, features: FeatureSource | None = None, *,
+                 rng: RngLike = None, seed: int | None = None):
         if method not in self.methods:
             raise ValueError(f"{type(self).__name__}: unknown method {method!r}; "
                              f"choose one of {', '.join(self.methods)}")
+        if rng is not None and seed is not None:
+            raise ValueError(f"{type(self).__name__}: give rng or seed, not both")
+        self.rng = np.random.default_rng(seed if rng is None else rng)
         self.method = method
         self.features = features if features is not None else self.default_features()
         self.status = Status.SEARCHING

@@ -203,10 +203,9 @@ class InplaneTracker(Tracker):
                                  f"got {expected_angle_deg}")
         self.expected_angle_deg = None if expected_angle_deg is None else float(
             expected_angle_deg)
-        self._rng = np.random.default_rng(seed if rng is None else rng)
         self._weights_arg = weights
         self._weights: TipWeights | None = None
-        super().__init__(method, features)
+        super().__init__(method, features, rng=rng, seed=seed)
         if self.features.kind == "classical":
             self.tip_weights()  # fail here, not on the first frame, when the file is missing
         self.feedback = method.endswith("+f")
@@ -420,7 +419,7 @@ class InplaneTracker(Tracker):
             return MathiassenTipFilter(x0_px, v0, params)
         maker = MathiassenPFParams.pf_v if self.use_velocity else MathiassenPFParams.pf
         params = maker(dt_s=dt, n_particles=self.params.pf_particles)
-        return MathiassenTipParticleFilter(x0_px, v0, params, rng=self._rng)
+        return MathiassenTipParticleFilter(x0_px, v0, params, rng=self.rng)
 
     # tracking ---------------------------------------------------------------------------
 
@@ -495,7 +494,7 @@ class InplaneTracker(Tracker):
                 extras["tip_measurement_mm"] = float(est.measurement_px * PAPER_PX_MM)
             return est.position_px * PAPER_PX_MM, float(est.P[0, 0])
         h_used = h if seen else np.zeros_like(h)  # a frame without the needle: flat h_pdf
-        est = self._tip_filter.step(h_used, x_px, velocity, rng=self._rng)  # Algorithm 5
+        est = self._tip_filter.step(h_used, x_px, velocity, rng=self.rng)  # Algorithm 5
         extras.update(measurement_accepted=bool(est.updated),
                       tip_velocity_mm_s=est.velocity_px_s * PAPER_PX_MM)
         return est.position_px * PAPER_PX_MM, float(est.covariance[0, 0])

@@ -172,7 +172,7 @@ class LineTracker(Tracker):
         The insertion angle to the skin, when the user knows it: the search then takes lines
         within ``angle_window_deg`` of it, entering from either side.
     params : LineTrackerParams
-    rng, seed : accepted for the common tracker interface; nothing here is random.
+    rng, seed : the common tracker interface (:class:`Tracker`); nothing here is random.
     """
 
     modality = "inplane"
@@ -190,7 +190,7 @@ class LineTracker(Tracker):
             expected_angle_deg)
         self._last_t: float | None = None
         self._dt: float | None = None
-        super().__init__(method, features)
+        super().__init__(method, features, rng=rng, seed=seed)
 
     # ------------------------------------------------------------------ state
 

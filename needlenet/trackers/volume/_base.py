@@ -108,8 +108,7 @@ class VolumeTracker(Tracker):
                  params: VolumeTrackerParams | None = None,
                  rng: np.random.Generator | int | None = None, seed: int | None = None):
         self.params = VolumeTrackerParams() if params is None else params
-        self._rng = np.random.default_rng(seed if rng is None else rng)
-        super().__init__(method, features)
+        super().__init__(method, features, rng=rng, seed=seed)
 
     def reset(self) -> None:
         super().reset()

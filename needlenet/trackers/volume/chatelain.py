@@ -111,7 +111,7 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
             # VOI around the predicted curve (its chord, widened by the bow of a curve).
             region = cylinder(vol, ctrl[0], k0, c.voi_radius_mm + bow,
                               (-c.voi_margin_mm, length + c.voi_margin_mm))
-            m = measure(vol, region, threshold(vol, p.measurement), p, self._rng,
+            m = measure(vol, region, threshold(vol, p.measurement), p, self.rng,
                         max_trials=p.measurement.init_max_trials, predicted_direction=k0,
                         max_angle_deg=c.max_angle_deg, fixed_size=self._voi_count(vol),
                         model="line" if n == 2 else "curve", order=n,
@@ -212,7 +212,7 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
         mp = replace(mp, min_length_mm=max(mp.min_length_mm, c.start_length_mm))
         p = replace(p, measurement=mp)
         # The change is where the needle moved, at its tip: it orients the needle.
-        m = measure(vol, region, level, p, self._rng, max_trials=mp.init_max_trials,
+        m = measure(vol, region, level, p, self.rng, max_trials=mp.init_max_trials,
                     fixed_size=self._voi_count(vol), tip_hint=median)
         if not m.ok:
             return m
@@ -242,7 +242,7 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
                             f"{likely:.2f} < {c.start_min_likelihood}", m.trials,
                             m.roi_voxels, m.inliers)
         if c.n_control_points == 3:
-            m = measure(vol, region, level, p, self._rng,
+            m = measure(vol, region, level, p, self.rng,
                         max_trials=mp.init_max_trials, predicted_direction=m.direction,
                         max_angle_deg=c.max_angle_deg, fixed_size=self._voi_count(vol),
                         model="curve", order=3)

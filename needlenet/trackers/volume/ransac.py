@@ -31,7 +31,7 @@ class RansacTracker(VolumeTracker, method="ransac"):
     def _track(self, frame: Frame, vol: Volume, dt: float) -> NeedleEstimate:
         p = self.params
         level = threshold(vol, p.measurement)  # eq. (B1)
-        m = measure(vol, None, level, p, self._rng, max_trials=p.measurement.max_trials)
+        m = measure(vol, None, level, p, self.rng, max_trials=p.measurement.max_trials)
         if not m.ok:
             return self._report(frame, self._not_found(), m)
         return self._report(frame, Status.TRACKING, m, m.tip, m.direction,

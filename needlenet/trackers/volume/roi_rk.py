@@ -91,7 +91,7 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         u_pred = angles_to_direction(*kf.x[ANGLES])
         tip_pred = kf.x[TIP]
         region = cylinder(vol, tip_pred, u_pred, r.roi_radius_mm)  # eq. (1)
-        m = measure(vol, region, level, p, self._rng, max_trials=p.measurement.max_trials,
+        m = measure(vol, region, level, p, self.rng, max_trials=p.measurement.max_trials,
                     predicted_direction=u_pred, predicted_tip=tip_pred)
         reason = None
         if m.ok:
@@ -169,13 +169,13 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
                          min_sample_distance=mp.min_sample_distance_mm,
                          success_probability=mp.success_probability,
                          max_trials=max_trials, batch_size=mp.batch_size,
-                         refine_iterations=mp.refine_iterations, rng=self._rng)
+                         refine_iterations=mp.refine_iterations, rng=self.rng)
             trials += res.n_trials
             if not res:
                 m = fail(f"RANSAC: {res.reason}", trials)
                 break
             region = cylinder(vol, res.model.origin, res.model.direction, r.roi_radius_mm)
-            m = measure(vol, region, level, p, self._rng, max_trials=mp.max_trials)
+            m = measure(vol, region, level, p, self.rng, max_trials=mp.max_trials)
             m.trials += trials
             if m.ok and m.entry_gap_mm > mp.entry_margin_mm:
                 m = fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
