@@ -8,6 +8,11 @@ import sys
 
 from ._common import CLIError, check_output, seed
 
+# exit status of a run that a safety stop ended, by its cause (0: no stop, 2: a user error)
+STOP_EXIT_CODES = {"needle_lost": 3, "never_found": 4, "stale_feed": 5, "stuck_detector": 6,
+                   "unconfirmed_travel": 7}
+FAULT_NAMES = ("frozen-feed", "stuck-detector", "needle-lost", "never-found")
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
@@ -16,7 +21,9 @@ def add_parser(sub) -> None:
                     "transverse probe (features ideal: section 4.1's noisy measurement, Table "
                     "2; learned/classical: each frame imaged from the probe's pose). "
                     "'volume-motion': Chatelain 2013's 3-DOF visual servoing of a 3D probe "
-                    "(runs misalignment and motion).")
+                    "(runs misalignment and motion). Every safety stop is printed; the exit "
+                    "status names the first one's cause: " + ", ".join(
+                        f"{c} {k}" for k, c in STOP_EXIT_CODES.items()) + " (0: no stop).")
     p.add_argument("scenario", help="servo | volume-motion")
     p.add_argument("--filter", action="append", metavar="pv|prv|all",
                    help="EKF state (repeatable or comma-separated; default all)")
@@ -33,6 +40,9 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--model", default=None, help="ONNX model instead of the shipped one")
     p.add_argument("--quick", action="store_true", help="short runs (under about a minute)")
+    p.add_argument("--fault", choices=FAULT_NAMES,
+                   help="inject a fault half way through every run (the insertion's half for "
+                        "volume-motion) to exercise the safety stops")
     p.add_argument("--json", default=None, help="write the rows to this .json")
     p.add_argument("--plot", default=None, help="write trajectories to this .png")
     p.add_argument("--overwrite", action="store_true")
@@ -91,9 +101,17 @@ def run(args) -> int:
     traces: list = []
     rows = _api.servo_rows(args.scenario, filters=filters, gains=gains, features=feats,
                            runs=runs, repeats=args.repeat, seed=args.seed, model=args.model,
-                           quick=args.quick, progress=progress, traces=traces)
+                           quick=args.quick, progress=progress, traces=traces,
+                           fault=args.fault)
     if not args.quiet:
         print(format_table(rows))
+    stops = [(r, stop) for r in rows for stop in r.get("stops", [])]
+    for r, stop in stops:
+        print(f"needlenet: safety stop: {stop['reason']} ({_config(r)}, seed {stop['seed']}) "
+              f"at {stop['time_s']:.2f} s" + (
+                  f", {stop['since_fault_s']:.2f} s and {stop['travel_since_fault_mm']:.2f} mm "
+                  f"of probe travel after the {stop['fault']} fault" if "fault" in stop else ""),
+              file=sys.stderr)
     if json_path is not None:
         from ..bench._machine import machine_description
 
@@ -101,12 +119,21 @@ def run(args) -> int:
                "quick": bool(args.quick), "events": [t.events for t in traces],
                "note": "latencies: wall time per cycle (time.perf_counter), with and without "
                        "the simulated scanner's imaging; other jobs may share the CPU"}
-        json_path.write_text(json.dumps(doc, indent=1, default=_json_default))
+        from ..io._atomic import atomic_write
+
+        text = json.dumps(doc, indent=1, default=_json_default)
+        atomic_write({json_path: lambda fh: fh.write(text.encode())}, overwrite=True)
     if plot_path is not None:
         from ..servo import plot_runs
 
         plot_runs(traces, plot_path, f"needlenet servo {args.scenario}")
-    return 0
+    return STOP_EXIT_CODES[stops[0][1]["reason"]] if stops else 0
+
+
+def _config(row: dict) -> str:
+    if row["scenario"] == "servo":
+        return f"{row['features']} {row['gain']}-{row['filter']}"
+    return f"{row['features']} {row['run']}"
 
 
 def _json_default(o):

@@ -123,3 +123,31 @@ def test_rows_record_each_stop_with_its_cause():
                    for s in rows[0]["stops"])
     with pytest.raises(ValueError, match="unknown fault 'melted'"):
         servo_rows("servo", features=("ideal",), repeats=1, quick=True, fault="melted")
+
+
+@pytest.mark.parametrize("kind", sorted(REASONS))
+def test_cli_prints_each_stop_and_exits_with_its_code(kind, tmp_path, capsys):
+    import json
+
+    from needlenet.cli import main
+    from needlenet.cli._servo import FAULT_NAMES, STOP_EXIT_CODES
+    from needlenet.servo import FAULTS
+
+    assert FAULT_NAMES == FAULTS
+    out = tmp_path / "s.json"
+    rc = main(["servo", "servo", "--repeat", "1", "--quick", "--filter", "prv", "--gain",
+               "dynamic", "--fault", kind, "--json", str(out), "--quiet"])
+    assert rc == STOP_EXIT_CODES[REASONS[kind]]
+    err = capsys.readouterr().err
+    assert f"needlenet: safety stop: {REASONS[kind]} (ideal dynamic-prv, seed 0)" in err
+    assert f"after the {kind} fault" in err
+    stop = json.loads(out.read_text())["rows"][0]["stops"][0]
+    assert stop["reason"] == REASONS[kind] and stop["since_fault_s"] <= 1.0
+
+
+def test_cli_nominal_run_exits_0(capsys):
+    from needlenet.cli import main
+
+    assert main(["servo", "servo", "--repeat", "1", "--quick", "--filter", "prv", "--gain",
+                 "dynamic", "--quiet"]) == 0
+    assert "safety stop" not in capsys.readouterr().err
