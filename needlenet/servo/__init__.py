@@ -65,6 +65,7 @@ from ._chatelain import (
     move_probe,
     run_chatelain,
 )
+from ._faults import FAULTS, Fault
 from ._images import (
     CALIBRATION_SEEDS,
     CrossSectionDetector,
@@ -81,9 +82,7 @@ from ._images import (
 )
 from ._plot import plot_runs
 from ._ye import (
-    FAULTS,
     YE_TABLE2,
-    Fault,
     MassDamperAxis,
     Measurement,
     PositionPD,

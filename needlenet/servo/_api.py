@@ -10,7 +10,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ._chatelain import CHATELAIN_REST, ChatelainConfig, run_chatelain
-from ._ye import FAULTS, YE_TABLE2, Fault, YeServoConfig, run_ye
+from ._faults import FAULTS, Fault
+from ._ye import YE_TABLE2, YeServoConfig, run_ye
 
 __all__ = ["SCENARIOS", "ClosedLoopResult", "run_closed_loop", "servo_rows", "check_options",
            "FILTERS", "GAINS", "FEATURES_2D", "FEATURES_3D", "RUNS_3D", "FAULTS", "stops"]

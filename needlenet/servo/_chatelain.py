@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..trackers._base import NeedleEstimate, Status
-from ._ye import Fault
+from ._faults import Fault
 
 __all__ = ["ChatelainConfig", "chatelain_features", "control_velocity", "interaction_matrix",
            "move_probe", "run_chatelain", "CHATELAIN_REST"]
