@@ -22,8 +22,8 @@ from scipy import ndimage
 
 from synth import Grid
 
-__all__ = ["LineSearchParams", "NeedleLine", "working_map", "hough_peaks", "refine_line",
-           "line_segment", "find_needle_line"]
+__all__ = ["LineSearchParams", "NeedleLine", "WorkingMap", "working_map", "hough_peaks",
+           "refine_line", "line_segment", "find_needle_line"]
 
 
 @dataclass(frozen=True)

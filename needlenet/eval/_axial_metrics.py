@@ -30,7 +30,7 @@ import numpy as np
 
 from synth import invert_rigid
 
-from ..backends._bicycle import shape_error, tip_error
+from ..backends import shape_error, tip_error
 from ..trackers._base import NeedleEstimate, Status
 
 __all__ = ["AxialMetrics", "axial_errors", "axial_metrics", "eq8_shape_error"]

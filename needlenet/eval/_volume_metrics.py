@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..backends._kalman import direction_to_angles
+from ..backends import direction_to_angles
 
 if TYPE_CHECKING:  # pragma: no cover
     from synth import Sequence

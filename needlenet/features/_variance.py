@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backends._ncc import variance_image
+from ..backends import variance_image
 from ._base import FeatureSource, Frame, Likelihood
 
 __all__ = ["VarianceFeatures"]

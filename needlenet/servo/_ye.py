@@ -78,14 +78,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..backends._ekf import (
+from ..backends import (
     AdaptiveNoise,
     ExtendedKalmanFilter,
     YeEKFParams,
+    chi2_gate,
     ye_prv_model,
     ye_pv_model,
 )
-from ..backends._kalman import chi2_gate
 from ._faults import Fault
 
 __all__ = [

@@ -96,9 +96,15 @@ import numpy as np
 
 from synth import invert_rigid
 
-from ..backends._bicycle import CarriereParams, CarriereParticleFilter, fit_plane_angle_pca
-from ..backends._ncc import match_template_roi, variance_image
-from ..backends._particle import RngLike, UpdateOutcome
+from ..backends import (
+    CarriereParams,
+    CarriereParticleFilter,
+    RngLike,
+    UpdateOutcome,
+    fit_plane_angle_pca,
+    match_template_roi,
+    variance_image,
+)
 from ..features._base import FeatureSource, Frame
 from ._base import NeedleEstimate, Status, Tracker
 

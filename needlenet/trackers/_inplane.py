@@ -54,14 +54,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..backends._kalman import (
+from ..backends import (
     MathiassenAngleFilter,
     MathiassenAngleParams,
+    MathiassenPFParams,
     MathiassenTipFilter,
     MathiassenTipParams,
+    MathiassenTipParticleFilter,
     tip_candidates,
 )
-from ..backends._particle import MathiassenPFParams, MathiassenTipParticleFilter
 from ..features._base import FeatureSource, Frame
 from ..features._hough import DFParams, ding_fenster
 from ..features._mathiassen import (

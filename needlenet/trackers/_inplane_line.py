@@ -41,12 +41,14 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from ..backends._kalman import chi2_gate, predict, update
-from ..backends._line_search import (
+from ..backends import (
     LineSearchParams,
     NeedleLine,
     WorkingMap,
+    chi2_gate,
     find_needle_line,
+    predict,
+    update,
     working_map,
 )
 from ..features._base import FeatureSource, Frame

@@ -11,7 +11,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ...backends._kalman import direction_to_angles, predict, update
+from ...backends import direction_to_angles, predict, update
 from ...features._base import FeatureSource, Frame
 from .._base import NeedleEstimate, Status, Tracker
 from ._geometry import Volume

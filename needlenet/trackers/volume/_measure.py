@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...backends._ransac import LineModel, PolyCurveModel, RansacResult, ransac, tip_along_axis
+from ...backends import LineModel, PolyCurveModel, RansacResult, ransac, tip_along_axis
 from ._geometry import Volume, profile, run_out_distance
 from ._placement import image_tip, refine_on_image, tip_on_map
 from .params import MeasurementParams, VolumeTrackerParams

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from ...backends._ransac import LineModel
+from ...backends import LineModel
 from ._geometry import (
     RING_MIN_SAMPLES,
     Volume,

@@ -20,8 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ...backends._insertion import InsertionDetector, InsertionParams
-from ...backends._kalman import chatelain_control_points_model
+from ...backends import InsertionDetector, InsertionParams, chatelain_control_points_model
 from ...features._base import Frame
 from .._base import NeedleEstimate, Status
 from ._base import StateFilter, VolumeTracker

@@ -16,7 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ...backends._insertion import InsertionParams
+from ...backends import InsertionParams
 from ...features._frangi import FrangiParams
 
 __all__ = ["ChatelainParams", "LearnedPlacementParams", "MeasurementParams", "RoiRkParams",

@@ -19,9 +19,7 @@ import math
 
 import numpy as np
 
-from ...backends._kalman import angles_to_direction, zhao_model
-from ...backends._ncc import tip_velocity
-from ...backends._ransac import ransac
+from ...backends import angles_to_direction, ransac, tip_velocity, zhao_model
 from ...features._base import Frame
 from ...features._frangi import FrangiFeatures
 from .._base import NeedleEstimate, Status
