@@ -34,6 +34,12 @@ OPTIONAL = ("probe_pose", "tip_mm", "entry_mm", "direction", "visible", "centerl
             "tip_3d_mm", "contrast_ratio")
 
 
+_MAX_INFLATION = 1032  # deflate inflates at most ~1032:1 (a 258-byte match costs >= 2 bits)
+# the largest frame a sequence file may hold: 4096^2 pixels (synth's own limit for a 2D
+# frame) or 512^3 voxels, as needlenet.io._limits.MAX_FRAME_PIXELS
+MAX_FRAME_PIXELS = {2: 1 << 24, 3: 1 << 27}
+
+
 class SequenceFileError(ValueError):
     """A sequence file (or in-memory sequence) is missing a key or has a wrong one."""
 
@@ -100,12 +106,14 @@ def validate_sequence(seq: Sequence, source: str = "sequence") -> Sequence:
     if (seq.modality == "volume") != (nd == 3):
         raise _err(source, "modality",
                    f"{seq.modality!r} does not match {nd}D frames of shape {im.shape[1:]}")
+    for key in NUMERIC:
+        _check_numeric(getattr(seq, key), source, key)
     for key in ("spacing_mm", "origin_mm"):
         v = np.asarray(getattr(seq, key), float)
         if v.shape != (nd,) or not np.all(np.isfinite(v)):
-            raise _err(source, key, f"must be {nd} finite numbers, got {v}")
+            raise _err(source, key, f"must be {nd} finite numbers, got {_show(v)}")
         if key == "spacing_mm" and np.any(v <= 0):
-            raise _err(source, key, f"must be positive, got {v}")
+            raise _err(source, key, f"must be positive, got {_show(v)}")
     ts = np.asarray(seq.timestamps_s, float)
     if ts.shape != (T,) or not np.all(np.isfinite(ts)):
         raise _err(source, "timestamps_s", f"must be {T} finite numbers, got shape {ts.shape}")
@@ -132,13 +140,47 @@ def validate_sequence(seq: Sequence, source: str = "sequence") -> Sequence:
                 raise _err(source, key, f"must be bool, got {v.dtype}")
         elif key not in ("tip_mm", "direction", "contrast_ratio") and not np.all(np.isfinite(v)):
             raise _err(source, key, "must be finite")
+        elif key != "visible" and np.any(np.isinf(v)):  # NaN: unknown; infinity: never
+            raise _err(source, key, "must be finite, or NaN where unknown (it holds infinity)")
+    if seq.direction is not None:
+        d = np.asarray(seq.direction, float)
+        known = np.isfinite(d).all(axis=1)
+        if np.any(~known & ~np.isnan(d).all(axis=1)):
+            raise _err(source, "direction", f"frame {int(np.flatnonzero(~known)[0])} is "
+                       "partly NaN; a direction is known (finite) or not (all NaN)")
+        norm = np.linalg.norm(d[known], axis=1)
+        if np.any(~(norm > 1e-6)):
+            raise _err(source, "direction", f"frame {int(np.flatnonzero(known)[0])}: a zero "
+                       "vector; directions are unit vectors (NaN where unknown)")
     if seq.centerline_mm is not None:
         c = np.asarray(seq.centerline_mm)
         if c.ndim != 3 or c.shape[0] != T or c.shape[2] not in (2, 3):
             raise _err(source, "centerline_mm", f"must be (T, K, 2 or 3), got {c.shape}")
-    if seq.tip_mm is not None and seq.visible is None:
-        raise _err(source, "visible", "is required when tip_mm is given")
+    if seq.tip_mm is not None:
+        # what the metrics of each modality need beside the tip (see needlenet.eval)
+        for key in ("visible", "direction") + (("entry_mm",) if nd == 3 else ()):
+            if getattr(seq, key) is None:
+                raise _err(source, key, "is required when tip_mm is given")
     return seq
+
+
+NUMERIC = ("spacing_mm", "origin_mm", "timestamps_s", "probe_pose", "tip_mm", "entry_mm",
+           "direction", "centerline_mm", "tip_3d_mm", "contrast_ratio")
+
+
+def _check_numeric(v, source: str, key: str) -> None:
+    """``v`` (None: absent) is an array of real numbers (not text, bytes, dates, complex)."""
+    if v is None:
+        return
+    a = np.asarray(v)
+    if a.dtype == bool or not (np.issubdtype(a.dtype, np.integer)
+                               or np.issubdtype(a.dtype, np.floating)):
+        raise _err(source, key, f"must hold real numbers, got dtype {a.dtype}")
+
+
+def _show(v: np.ndarray) -> str:
+    """An array in an error message, on one line."""
+    return str(np.asarray(v).tolist())[:120]
 
 
 def save_sequence(seq: Sequence, path: str | os.PathLike, overwrite: bool = False) -> Path:
@@ -202,6 +244,20 @@ def _check_member(zf: zipfile.ZipFile, key: str, src: str) -> None:
     if need != info.file_size - header_len:
         raise _err(src, key, f"its header describes {shape} {dtype} ({need} bytes) but the "
                    f"file holds {info.file_size - header_len} bytes for it")
+    # the sizes in the zip directory can be forged too: what a member's compressed bytes can
+    # hold bounds what numpy allocates before it reads them (deflate inflates at most
+    # ~1032:1, a stored member not at all)
+    ratio = {zipfile.ZIP_DEFLATED: _MAX_INFLATION, zipfile.ZIP_STORED: 1}.get(
+        info.compress_type)
+    if ratio is not None and need > info.compress_size * ratio + 1024:
+        raise _err(src, key, f"its header describes {need} bytes, more than its "
+                   f"{info.compress_size} compressed bytes can hold; damaged file?")
+    if key == "images" and len(shape) in (3, 4):
+        frame = math.prod(int(n) for n in shape[1:])
+        most = MAX_FRAME_PIXELS[len(shape) - 1]
+        if frame > most:
+            raise _err(src, key, f"its header describes frames of {tuple(shape[1:])} = "
+                       f"{frame:.3g} pixels, more than any ultrasound frame ({most})")
 
 
 def load_sequence(path: str | os.PathLike) -> Sequence:
@@ -233,7 +289,7 @@ def load_sequence(path: str | os.PathLike) -> Sequence:
         kw["modality"] = str(kw["modality"][()])
         kw["dynamic_range_db"] = float(kw["dynamic_range_db"])
         kw["meta"] = json.loads(str(kw["meta"][()]))
-    except (ValueError, TypeError, json.JSONDecodeError) as exc:
+    except (ValueError, TypeError, json.JSONDecodeError, RecursionError) as exc:
         raise SequenceFileError(
             f"{src}: scalar keys modality/dynamic_range_db/meta: {exc}") from None
     return validate_sequence(Sequence(**kw), source=src)

@@ -13,7 +13,7 @@ __all__ = ["atomic_write", "check_outputs"]
 def check_outputs(paths: list[Path], overwrite: bool) -> None:
     """Refuse to replace an existing output unless ``overwrite``; the directory must exist."""
     for p in paths:
-        if p.exists() and not overwrite:
+        if (p.exists() or p.is_symlink()) and not overwrite:
             raise FileExistsError(f"output {p} exists; pass overwrite=True (--overwrite) to "
                                   "replace it")
         parent = p.parent if str(p.parent) else Path(".")
@@ -32,7 +32,8 @@ def atomic_write(writers: dict[Path, Callable], overwrite: bool) -> list[Path]:
         for path, write in writers.items():
             path = Path(path)
             parent = path.parent if str(path.parent) else Path(".")
-            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent)
+            # the name shortened: a temporary name must fit where the output's own fits
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name[:64]}.", suffix=".tmp", dir=parent)
             tmps.append((tmp, path))
             with os.fdopen(fd, "wb") as fh:
                 write(fh)

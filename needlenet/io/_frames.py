@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import RecordingError
+from ._limits import check_allocation, check_frame_shape
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "read_sidecar", "sidecar_path",
            "read_image_folder", "read_video", "apply_crop"]
@@ -30,6 +31,7 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v", ".mpg", ".mpeg", ".wmv")
 SIDECAR_KEYS = ("spacing_mm", "origin_mm", "fps", "timestamps_s", "modality", "crop",
                 "dynamic_range_db")
+_MAX_SIDECAR = 64 << 20  # a sidecar holds a few numbers per frame
 
 
 def sidecar_path(path: Path) -> Path | None:
@@ -44,9 +46,13 @@ def read_sidecar(path: Path) -> dict:
     otherwise be silently ignored)."""
     src = str(path)
     try:
+        if path.stat().st_size > _MAX_SIDECAR:
+            raise RecordingError(f"{src}: {path.stat().st_size} bytes is no sidecar JSON (at "
+                                 f"most {_MAX_SIDECAR} bytes)")
         d = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise RecordingError(f"{src}: not a readable JSON sidecar ({exc})") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise RecordingError(f"{src}: not a readable JSON sidecar "
+                             f"({type(exc).__name__}: {str(exc)[:200]})") from None
     if not isinstance(d, dict):
         raise RecordingError(f"{src}: the sidecar must be a JSON object")
     unknown = sorted(set(d) - set(SIDECAR_KEYS))
@@ -126,7 +132,13 @@ def read_image_folder(path: str | os.PathLike) -> np.ndarray:
                              "folder")
     frames = []
     for f in files:
-        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        if not f.is_file():  # a folder, or a FIFO that would never end
+            raise RecordingError(f"{f}: not a regular file")
+        _check_image_size(f, len(files))
+        try:
+            img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        except cv2.error as exc:
+            raise RecordingError(f"{f}: not a readable image ({_cv_message(exc)})") from None
         if img is None:
             raise RecordingError(f"{f}: not a readable image")
         img = _gray(img)
@@ -139,6 +151,31 @@ def read_image_folder(path: str | os.PathLike) -> np.ndarray:
     return np.stack(frames)
 
 
+def _cv_message(exc) -> str:
+    """The one line of an OpenCV error that says what failed."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    return (lines[-1] if lines else type(exc).__name__)[:200]
+
+
+def _check_image_size(f: Path, n_files: int) -> None:
+    """The size an image file's header claims (read by Pillow, which reads the header only),
+    checked before OpenCV allocates it: a damaged header claiming 50000 x 50000 pixels is an
+    error naming the file, not gigabytes allocated for a few bytes of data. ``n_files``
+    frames of that size must fit :func:`~._limits.memory_budget_bytes`."""
+    from PIL import Image
+
+    Image.MAX_IMAGE_PIXELS = None  # the check below replaces Pillow's bomb warning
+    try:
+        with Image.open(f) as im:
+            w, h = im.size
+            bands = len(im.getbands())
+            depth = 2 if im.mode in ("I;16", "I;16B", "I;16L", "I") else 1
+    except Exception:  # Pillow cannot parse it: OpenCV will say so
+        return
+    check_frame_shape((h, w), str(f), "its header's image size")
+    check_allocation((n_files, h, w, bands), depth, str(f), "its header's image size")
+
+
 def read_video(path: str | os.PathLike) -> tuple[np.ndarray, float | None, list[str]]:
     """Every frame of a video (OpenCV ``VideoCapture``) as uint8 gray ``(T, H, W)``, the
     container's frame rate (None when it does not say), and notes for the user (fewer frames
@@ -146,7 +183,13 @@ def read_video(path: str | os.PathLike) -> tuple[np.ndarray, float | None, list[
     import cv2
 
     src = str(path)
-    cap = cv2.VideoCapture(src)
+    if not Path(path).is_file():  # OpenCV would wait on a FIFO for ever
+        raise RecordingError(f"{src}: not a regular file")
+    try:
+        cap = cv2.VideoCapture(src)
+    except cv2.error as exc:
+        raise RecordingError(f"{src}: OpenCV cannot open this video ({_cv_message(exc)})"
+                             ) from None
     try:
         if not cap.isOpened():
             raise RecordingError(f"{src}: OpenCV cannot open this video (damaged file, or a "
@@ -155,12 +198,19 @@ def read_video(path: str | os.PathLike) -> tuple[np.ndarray, float | None, list[
         announced = float(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0.0)
         frames = []
         while True:
-            ok, img = cap.read()
+            try:
+                ok, img = cap.read()
+            except cv2.error as exc:
+                raise RecordingError(f"{src}: frame {len(frames)} cannot be decoded "
+                                     f"({_cv_message(exc)})") from None
             if not ok:
                 break
             img = _gray(img)
             if frames and img.shape != frames[0].shape:
                 raise RecordingError(f"{src}: frame {len(frames)} changes size")
+            # every decoded frame is kept: the whole video must fit the memory budget
+            check_frame_shape(img.shape, src, "frame size")
+            check_allocation((len(frames) + 1, *img.shape), 1, src, "the frames decoded")
             frames.append(img)
     finally:
         cap.release()

@@ -16,14 +16,21 @@ import numpy as np
 
 from ._errors import RecordingError
 
-__all__ = ["SPACING_RANGE_MM", "MAX_EXTENT_MM", "FRAME_RATE_RANGE_HZ", "SPEED_RANGE_MM_S",
+__all__ = ["MAX_GAP_S", "SPACING_RANGE_MM", "MAX_EXTENT_MM", "FRAME_RATE_RANGE_HZ",
+           "SPEED_RANGE_MM_S",
            "memory_budget_bytes", "check_allocation", "check_spacing", "check_extent",
-           "check_fps", "check_frame_times", "check_meta_numbers"]
+           "check_fps", "check_frame_times", "check_meta_numbers", "check_origin",
+           "check_transforms", "MAX_POSITION_MM", "MAX_FRAME_PIXELS", "check_frame_shape"]
 
 SPACING_RANGE_MM = (0.005, 5.0)
 MAX_EXTENT_MM = 500.0
+MAX_POSITION_MM = 1e5  # an image origin or a transform's translation: 100 m from the reference
+# the largest frame: 4096 x 4096 pixels (beyond any scanner's, and synth's own limit) or 512^3
+# voxels; a header claiming more is damaged, and is refused before its pixels are read
+MAX_FRAME_PIXELS = {2: 1 << 24, 3: 1 << 27}
 FRAME_RATE_RANGE_HZ = (0.1, 1000.0)
 SPEED_RANGE_MM_S = (0.0, 1000.0)  # an insertion speed a robot reports
+MAX_GAP_S = 3600.0  # the longest pause between two frames of one recording
 DEPTH_RANGE_MM = (0.0, 1000.0)  # a planned depth (Carriere's rotation depth D)
 
 
@@ -47,6 +54,16 @@ def check_allocation(shape, itemsize: int, src: str, field: str) -> int:
                              f"{tuple(int(s) for s in shape)}, more than this machine can hold "
                              f"({budget / 2**30:.3g} GiB); damaged header?")
     return n
+
+
+def check_frame_shape(shape, src: str, field: str) -> None:
+    """One frame's shape (2 or 3 axes) within :data:`MAX_FRAME_PIXELS`."""
+    shape = tuple(int(s) for s in shape)
+    most = MAX_FRAME_PIXELS.get(len(shape), MAX_FRAME_PIXELS[3])
+    n = math.prod(shape)
+    if n > most:
+        raise RecordingError(f"{src}: {field} describes frames of {shape} = {n:.3g} pixels, "
+                             f"more than any ultrasound frame ({most}); damaged header?")
 
 
 def check_spacing(spacing_mm, src: str, field: str) -> np.ndarray:
@@ -85,8 +102,13 @@ def check_fps(fps: float, src: str, field: str = "--fps") -> float:
 def check_frame_times(ts: np.ndarray, src: str, field: str) -> None:
     """Frame times whose typical interval (the median of the positive ones) is a frame rate
     within :data:`FRAME_RATE_RANGE_HZ` (repeated times are allowed: a frame grabber may stamp
-    two frames alike)."""
+    two frames alike), with no pause between two frames longer than :data:`MAX_GAP_S`."""
     d = np.diff(np.asarray(ts, float))
+    if d.size and float(d.max()) > MAX_GAP_S:
+        k = int(np.argmax(d))
+        raise RecordingError(f"{src}: {field}: frame {k + 1} comes {float(d[k]):.3g} s after "
+                             f"frame {k}, more than {MAX_GAP_S:g} s (one recording); damaged "
+                             "frame times? pass the frame rate with --fps N")
     d = d[d > 0]
     if not d.size:
         return
@@ -119,3 +141,39 @@ def check_meta_numbers(meta: dict, src: str) -> None:
         if not ok:
             raise RecordingError(f"{src}: meta field {section}.{key} = {v!r:.60} must be a "
                                  f"number in {lo}-{hi}")
+
+
+def check_origin(origin_mm, src: str, field: str) -> np.ndarray:
+    """An image origin: finite and within :data:`MAX_POSITION_MM` of the reference (a file
+    that puts its first pixel 1e308 mm away would overflow every position computed from
+    it)."""
+    o = np.atleast_1d(np.asarray(origin_mm, float))
+    if not np.all(np.isfinite(o)) or np.any(np.abs(o) > MAX_POSITION_MM):
+        raise RecordingError(f"{src}: {field} = {o.tolist()} mm is not finite or lies more "
+                             f"than {MAX_POSITION_MM:g} mm from the reference")
+    return o
+
+
+def check_transforms(mats: np.ndarray, ok: np.ndarray, src: str, field: str) -> None:
+    """4x4 transforms (``(T, 4, 4)``) of the frames marked ``ok``: finite, last row
+    ``0 0 0 1``, a rotation part that is invertible and of moderate scale (singular values
+    1e-3 to 1e3: rigid, or scaled as an ImageToProbe calibration is) and a translation within
+    :data:`MAX_POSITION_MM`. A frame at fault is named (``field`` holds ``NNNN`` for its
+    number)."""
+    mats = np.asarray(mats, float)
+    for i in np.flatnonzero(np.asarray(ok, bool)):
+        m = mats[i]
+        name = field.replace("NNNN", f"{int(i):04d}")
+        if not np.all(np.isfinite(m)):
+            raise RecordingError(f"{src}: {name} is not finite")
+        if not np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+            raise RecordingError(f"{src}: {name}: the last row {m[3].tolist()} must be 0 0 0 1 "
+                                 "(a rigid or affine transform)")
+        sv = np.linalg.svd(m[:3, :3], compute_uv=False)
+        if not (sv.min() >= 1e-3 and sv.max() <= 1e3):
+            raise RecordingError(f"{src}: {name}: the rotation part is singular or scales by "
+                                 f"{sv.max():.3g} (singular values {sv.min():.3g} to "
+                                 f"{sv.max():.3g}); expected a rigid transform")
+        if np.any(np.abs(m[:3, 3]) > MAX_POSITION_MM):
+            raise RecordingError(f"{src}: {name}: translation {m[:3, 3].tolist()} mm lies more "
+                                 f"than {MAX_POSITION_MM:g} mm from the reference")

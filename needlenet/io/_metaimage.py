@@ -47,7 +47,7 @@ import numpy as np
 
 from ._atomic import atomic_write
 from ._errors import RecordingError
-from ._limits import check_allocation
+from ._limits import check_allocation, check_frame_shape
 
 __all__ = ["PlusSequence", "read_plus", "write_plus", "plus_outputs", "ORIENTATIONS",
            "PLUS_SUFFIXES"]
@@ -328,6 +328,7 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
     compressed = _flag(header, "CompressedData", src)
     shape = (T, *[int(d) for d in dims_sp[::-1]]) + ((channels,) if channels > 1 else ())
     nbytes = check_allocation(shape, dtype.itemsize, src, "DimSize/ElementType")
+    check_frame_shape(shape[1:1 + len(dims_sp)], src, "DimSize")
     blob = _pixel_bytes(path, src, header, offset, nbytes, compressed)
     arr = np.frombuffer(blob, dtype=dtype).reshape(shape)
     images, irange, notes = _to_gray_uint8(arr, channels)

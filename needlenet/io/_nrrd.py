@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import RecordingError
-from ._limits import check_allocation
+from ._limits import check_allocation, check_frame_shape
 from ._metaimage import _to_gray_uint8
 
 __all__ = ["NrrdRecording", "read_nrrd"]
@@ -69,32 +69,89 @@ def _check_header(path: Path, src: str) -> None:
             header_end = fh.tell()
     except Exception as exc:  # a damaged header raises whatever pynrrd's parser meets
         raise RecordingError(f"{src}: not a readable NRRD header ({type(exc).__name__}: "
-                             f"{exc})") from None
+                             f"{' '.join(str(exc).split())[:200]})") from None
     kind = str(header.get("type", "")).strip().lower()
     if kind not in _TYPE_BYTES:
         raise RecordingError(f"{src}: field type = {header.get('type')!r} is not a scalar type "
                              "needlenet reads (uchar, short, float, ...)")
     sizes = np.atleast_1d(np.asarray(header.get("sizes", []))).astype(object)
     if not sizes.size or any(not isinstance(n, (int, np.integer)) or n < 1 for n in sizes):
-        raise RecordingError(f"{src}: field sizes = {header.get('sizes')!r} must be positive "
-                             "whole numbers")
+        raise RecordingError(f"{src}: field sizes = {sizes.tolist()} must be positive whole "
+                             "numbers")
     nbytes = check_allocation(sizes, _TYPE_BYTES[kind], src, "sizes/type")
-    raw = str(header.get("encoding", "")).lower() == "raw"
+    kinds = [str(k).lower() for k in header.get("kinds", [])]
+    if len(kinds) == sizes.size:  # a frame: the spatial axes (not the list or colour axis)
+        check_frame_shape([n for n, k in zip(sizes, kinds, strict=True)
+                           if k not in _LIST + _COLOR], src, "sizes/kinds")
+    encoding = str(header.get("encoding", "")).lower()
+    raw = encoding == "raw"
     data_file = header.get("data file", header.get("datafile"))
     if data_file is None:
-        if raw and os.path.getsize(path) - header_end < nbytes:
-            raise RecordingError(f"{src}: truncated: sizes/type need {nbytes} bytes of pixels, "
-                                 f"the file has {os.path.getsize(path) - header_end}")
-        return
-    target = Path(str(data_file))
-    target = target if target.is_absolute() else path.parent / target
-    if not target.is_file():
-        raise RecordingError(f"{src}: field data file = {data_file!r} is not a regular file "
-                             "(missing, a folder or a device); needlenet reads one detached "
-                             "data file")
-    if raw and os.path.getsize(target) < nbytes:
-        raise RecordingError(f"{target}: truncated: {src}'s sizes/type need {nbytes} bytes, the "
-                             f"file has {os.path.getsize(target)}")
+        target, start = path, header_end
+    else:
+        target = Path(str(data_file))
+        target = target if target.is_absolute() else path.parent / target
+        if not target.is_file():
+            raise RecordingError(f"{src}: field data file = {data_file!r} is not a regular "
+                                 "file (missing, a folder or a device); needlenet reads one "
+                                 "detached data file")
+        start = 0
+    avail = os.path.getsize(target) - start
+    line_skip = header.get("line skip", header.get("lineskip", 0))
+    byte_skip = header.get("byte skip", header.get("byteskip", 0))
+    # every skipped line is at least one byte: a line skip beyond the data is a damaged
+    # header (pynrrd would read 10^9 empty lines, for minutes)
+    if not isinstance(line_skip, (int, np.integer)) or not 0 <= line_skip <= avail:
+        raise RecordingError(f"{src}: field line skip = {line_skip!r} must be 0 to the "
+                             f"{avail} bytes of data")
+    if not isinstance(byte_skip, (int, np.integer)) or byte_skip < -1 or \
+            (raw and byte_skip > avail):
+        raise RecordingError(f"{src}: field byte skip = {byte_skip!r} must be -1 to the "
+                             f"{avail} bytes of data")
+    if raw and avail - max(int(byte_skip), 0) < nbytes:
+        where = src if data_file is None else f"{target} ({src}'s data file)"
+        raise RecordingError(f"{where}: truncated: sizes/type need {nbytes} bytes of pixels, "
+                             f"the file has {avail - max(int(byte_skip), 0)}")
+    if encoding in ("gzip", "gz", "bzip2", "bz2"):
+        _check_inflated(target, start, encoding, nbytes + max(int(byte_skip), 0), src)
+
+
+def _check_inflated(target: Path, start: int, encoding: str, need: int, src: str) -> None:
+    """The compressed data inflates to no more than ``need`` bytes: pynrrd inflates the whole
+    stream before it compares sizes, so a few megabytes that inflate to gigabytes would be
+    allocated whole. Inflated here in 1 MiB pieces, counted and dropped."""
+    import bz2
+
+    gz = encoding in ("gzip", "gz")
+    d = zlib.decompressobj(zlib.MAX_WBITS | 16) if gz else bz2.BZ2Decompressor()
+    step = 1 << 20
+    total = 0
+
+    def count(out: bytes) -> None:
+        nonlocal total
+        total += len(out)
+        if total > need:
+            raise RecordingError(f"{src}: the {encoding} data inflates to more than the {need} "
+                                 "bytes that sizes/type describe; damaged header or data?")
+
+    try:
+        with open(target, "rb") as fh:
+            fh.seek(start)
+            while not d.eof:
+                chunk = fh.read(step)
+                if not chunk:
+                    break
+                if gz:
+                    while chunk and not d.eof:
+                        count(d.decompress(chunk, step))
+                        chunk = d.unconsumed_tail
+                else:
+                    count(d.decompress(chunk, step))
+                    while not d.eof and not d.needs_input:
+                        count(d.decompress(b"", step))
+    except (zlib.error, OSError, EOFError) as exc:
+        raise RecordingError(f"{src}: the {encoding} data is damaged "
+                             f"({' '.join(str(exc).split())[:120]})") from None
 
 
 def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
@@ -113,7 +170,8 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
             data, header = nrrd.read(src, index_order="F")
     except (nrrd.NRRDError, OSError, ValueError, EOFError, zlib.error, TypeError,
             KeyError, StopIteration, MemoryError) as exc:
-        raise RecordingError(f"{src}: not a readable NRRD file ({exc})") from None
+        raise RecordingError(f"{src}: not a readable NRRD file "
+                             f"({' '.join(str(exc).split())[:200]})") from None
     nd = data.ndim
     kinds = [str(k).lower() for k in header.get("kinds", [])]
     if kinds and len(kinds) != nd:
@@ -163,10 +221,13 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
         if sp.shape == (nd,) and np.all(np.isfinite(sp[spatial])):
             spacing = np.abs(sp[spatial])
     if spacing is not None and np.any(spacing <= 0):
-        raise RecordingError(f"{src}: spatial axes have zero spacing ({spacing})")
+        raise RecordingError(f"{src}: spatial axes have zero spacing ({spacing.tolist()})")
     origin = np.zeros(len(spatial))
     if "space origin" in header and unit:
         so = np.asarray(header["space origin"], float)
+        if so.shape != unit[0].shape:
+            raise RecordingError(f"{src}: field space origin has {so.size} values for "
+                                 f"{unit[0].size}-dimensional space directions")
         if np.all(np.isfinite(so)):
             origin = np.array([so @ u for u in unit])
     elif "axis mins" in header:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import cv2
@@ -83,21 +85,32 @@ def write_overlay(path: str | Path, seq, estimates, fps: float | None = None,
         dt = np.median(np.diff(seq.timestamps_s)) if seq.n_frames > 1 else 0.05
         fps = float(np.clip(1.0 / max(dt * step, 1e-3), 1.0, 30.0))
     ext = path.suffix.lower()
-    if ext == ".gif":
-        from PIL import Image
-
-        ims = [Image.fromarray(cv2.cvtColor(f, cv2.COLOR_BGR2RGB)) for f in frames]
-        ims[0].save(path, save_all=True, append_images=ims[1:], duration=int(1000 / fps),
-                    loop=0, optimize=False)
-    elif ext in (".mp4", ".avi"):
-        h, w = frames[0].shape[:2]
-        fourcc = cv2.VideoWriter_fourcc(*("mp4v" if ext == ".mp4" else "MJPG"))
-        wr = cv2.VideoWriter(str(path), fourcc, fps, (w, h))
-        if not wr.isOpened():
-            raise OSError(f"overlay {path}: OpenCV cannot write {ext} here")
-        for f in frames:
-            wr.write(f)
-        wr.release()
-    else:
+    if ext not in (".gif", ".mp4", ".avi"):
         raise ValueError(f"overlay {path}: use .gif, .mp4 or .avi")
+    # written whole or not at all: a temporary file beside it (same suffix, which OpenCV
+    # reads the container from), renamed over the target at the end
+    parent = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:64]}.", suffix=ext, dir=parent)
+    os.close(fd)
+    try:
+        if ext == ".gif":
+            from PIL import Image
+
+            ims = [Image.fromarray(cv2.cvtColor(f, cv2.COLOR_BGR2RGB)) for f in frames]
+            ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:],
+                        duration=int(1000 / fps), loop=0, optimize=False)
+        else:
+            h, w = frames[0].shape[:2]
+            fourcc = cv2.VideoWriter_fourcc(*("mp4v" if ext == ".mp4" else "MJPG"))
+            wr = cv2.VideoWriter(tmp, fourcc, fps, (w, h))
+            if not wr.isOpened():
+                raise OSError(f"overlay {path}: OpenCV cannot write {ext} here")
+            for f in frames:
+                wr.write(f)
+            wr.release()
+        os.chmod(tmp, 0o644)  # mkstemp makes it private
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
     return path

@@ -36,7 +36,15 @@ from ._frames import (
     read_video,
     sidecar_path,
 )
-from ._limits import check_extent, check_fps, check_frame_times, check_meta_numbers, check_spacing
+from ._limits import (
+    check_extent,
+    check_fps,
+    check_frame_times,
+    check_meta_numbers,
+    check_origin,
+    check_spacing,
+    check_transforms,
+)
 from ._metaimage import PLUS_SUFFIXES, PlusSequence, read_plus, write_plus
 
 __all__ = ["load_recording", "save_plus_sequence", "sequence_to_plus", "needle_tip_matrix",
@@ -204,7 +212,8 @@ def _labels_from_plus(plus: PlusSequence, pose, modality, grid, src) -> dict:
     tip = np.where(good[:, None], mats[:, pick, 3], np.nan)
     d = mats[:, pick, 2]
     n = np.linalg.norm(d, axis=1, keepdims=True)
-    direction = np.where(good[:, None] & (n > 1e-12), d / np.maximum(n, 1e-12), np.nan)
+    ok_dir = good[:, None] & np.isfinite(n) & (n > 1e-12)
+    direction = np.where(ok_dir, d / np.where(ok_dir, n, 1.0), np.nan)
     out = {"tip_mm": tip, "direction": direction}
     vis = plus.frame_fields.get("NeedleTipVisible")
     if vis is not None and all(v is not None for v in vis):
@@ -273,6 +282,9 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
                              f"{modality!r}")
     if not path.exists():
         raise FileNotFoundError(f"{src}: no such recording")
+    if not (path.is_file() or path.is_dir()):  # reading a FIFO or a device never ends
+        raise RecordingError(f"{src}: not a regular file or a folder (a FIFO, a socket or a "
+                             "device?); give a recording file")
     suffix = path.suffix.lower()
     kw: dict = {}
     meta: dict = {"source": src}
@@ -330,9 +342,12 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
                 file_modality = saved["modality"]
                 kw["dynamic_range_db"] = float(saved["dynamic_range_db"])
                 meta = {**saved["meta"], **meta}
-            except (json.JSONDecodeError, KeyError, TypeError, ValueError):
+            except (json.JSONDecodeError, KeyError, TypeError, ValueError, RecursionError):
                 raise RecordingError(f"{src}: header field {_META_FIELD} is not needlenet's "
                                      "JSON") from None
+            if file_modality not in synth.MODALITIES:
+                raise RecordingError(f"{src}: header field {_META_FIELD}: modality "
+                                     f"{file_modality!r:.40} is not one of {synth.MODALITIES}")
     elif suffix in (".nrrd", ".nhdr"):
         from ._nrrd import read_nrrd
 
@@ -379,6 +394,10 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
     if origin.shape != (nd,):
         raise RecordingError(f"{src}: origin {origin.tolist()} has {origin.size} values for "
                              f"{nd}D frames")
+    check_origin(origin, src, {"plus": "Offset", "nrrd": "space origin / axis mins",
+                               "image folder": "the sidecar's origin_mm",
+                               "video": "the sidecar's origin_mm"}.get(meta.get("format"),
+                                                                       "origin_mm"))
     if crop is not None:
         if nd != 2:
             raise RecordingError(f"{src}: crop applies to 2D frames only")
@@ -398,6 +417,9 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
     seq_kw = dict(images=images, spacing_mm=sp, origin_mm=origin, modality=modality,
                   timestamps_s=ts, meta=meta, **kw)
     if plus is not None:
+        for name in {pose_transform, NEEDLE_TIP, NEEDLE_ENTRY} & set(plus.transforms):
+            check_transforms(plus.transforms[name], plus.transform_ok[name], src,
+                             f"Seq_FrameNNNN_{name}Transform")
         pose = plus.transforms.get(pose_transform)
         if pose is not None and np.all(plus.transform_ok[pose_transform]):
             seq_kw["probe_pose"] = pose
@@ -412,6 +434,9 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
         meta["warnings"] = warnings
     if modality != file_modality and file_modality is not None and suffix == ".npz":
         raise RecordingError(f"{src}: holds {file_modality!r} frames, not {modality!r}")
+    if seq_kw.get("probe_pose") is not None:
+        check_transforms(seq_kw["probe_pose"], np.ones(len(seq_kw["probe_pose"]), bool), src,
+                         "probe_pose (frame NNNN)")
     try:
         return synth.validate_sequence(synth.Sequence(**seq_kw), source=src)
     except synth.SequenceFileError as exc:

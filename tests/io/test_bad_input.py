@@ -208,3 +208,160 @@ def test_meta_round_trip_unchanged(tmp_path, seq):
     got = load_recording(path)
     assert "warnings" not in got.meta
     assert json.loads(json.dumps(got.meta)) == got.meta
+
+
+# -- found by the fuzz suite (tests/fuzz) --------------------------------------------------------
+
+@pytest.fixture
+def deadline():
+    """Fail instead of hanging: the bugs below made readers wait for ever."""
+    import signal
+
+    def boom(*_):
+        raise TimeoutError("the reader hung")
+
+    old = signal.signal(signal.SIGALRM, boom)
+    signal.alarm(20)
+    yield
+    signal.alarm(0)
+    signal.signal(signal.SIGALRM, old)
+
+
+@pytest.mark.parametrize("name", ["x.npz", "x.seq.mha", "x.nrrd", "x.avi"])
+def test_a_fifo_is_refused_not_read_for_ever(tmp_path, deadline, name):
+    import os
+
+    os.mkfifo(tmp_path / name)
+    with pytest.raises(RecordingError, match=r"not a regular file or a folder"):
+        load_recording(tmp_path / name, spacing_mm=0.1, fps=20)
+
+
+def _png(w, h, rows=b"") -> bytes:
+    """A PNG whose header says ``w`` x ``h`` gray pixels, with ``rows`` as its data."""
+    def chunk(kind, payload):
+        return len(payload).to_bytes(4, "big") + kind + payload + \
+            (zlib.crc32(kind + payload) & 0xFFFFFFFF).to_bytes(4, "big")
+
+    ihdr = w.to_bytes(4, "big") + h.to_bytes(4, "big") + bytes([8, 0, 0, 0, 0])
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + \
+        chunk(b"IDAT", zlib.compress(rows or b"\0" * (w + 1))) + chunk(b"IEND", b"")
+
+
+def test_png_frames_a_fifo_among_them_or_a_header_claiming_gigapixels(tmp_path, seq, deadline):
+    import os
+
+    cv2 = pytest.importorskip("cv2")
+    d = tmp_path / "f"
+    d.mkdir()
+    for i, im in enumerate(seq.images):
+        cv2.imwrite(str(d / f"{i}.png"), im)
+    os.mkfifo(d / "9.png")
+    with pytest.raises(RecordingError, match=r"9\.png: not a regular file"):
+        load_recording(d, spacing_mm=0.1, fps=20)
+    (d / "9.png").unlink()
+    (d / "9.png").write_bytes(_png(30000, 30000))  # OpenCV allocated 900 MB for it
+    with pytest.raises(RecordingError, match=r"9\.png: its header's image size describes "
+                                             r"frames of \(30000, 30000\)"):
+        load_recording(d, spacing_mm=0.1, fps=20)
+    (d / "9.png").write_bytes(_png(50000, 50000))  # OpenCV raised cv2.error
+    with pytest.raises(RecordingError, match=r"9\.png"):
+        load_recording(d, spacing_mm=0.1, fps=20)
+
+
+def test_a_sidecar_origin_far_away_or_nested_for_ever_is_named(tmp_path, seq):
+    cv2 = pytest.importorskip("cv2")
+    d = tmp_path / "f"
+    d.mkdir()
+    for i, im in enumerate(seq.images):
+        cv2.imwrite(str(d / f"{i}.png"), im)
+    (d / "frames.json").write_text(json.dumps({"spacing_mm": 0.1, "fps": 20,
+                                               "origin_mm": [1e308, 1e308]}))
+    with pytest.raises(RecordingError, match=r"the sidecar's origin_mm = \[1e\+308, 1e\+308\] "
+                                             r"mm is not finite or lies more than"):
+        load_recording(d)
+    (d / "frames.json").write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(RecordingError, match=r"frames\.json: not a readable JSON sidecar "
+                                             r"\(RecursionError"):
+        load_recording(d)
+
+
+@pytest.mark.parametrize("matrix, message", [
+    ("0 " * 15 + "1", r"the rotation part is singular"),
+    ("1e300 0 0 0 0 1e300 0 0 0 0 1e300 0 0 0 0 1", r"the rotation part is singular or "
+                                                    r"scales by 1e\+300"),
+    ("1 0 0 1e9 0 1 0 0 0 0 1 0 0 0 0 1", r"translation \[1000000000\.0, 0\.0, 0\.0\] mm"),
+    ("1 0 0 0 0 1 0 0 0 0 1 0 0 0 1 1", r"the last row"),
+])
+def test_plus_transforms_that_are_no_pose_are_named(plus, matrix, message):
+    """A singular ProbeToReferenceTransform was a LinAlgError; one of 1e300 a ValueError
+    deep in the metrics."""
+    header, body, write = plus
+    h = re.sub(r"Seq_Frame0002_ProbeToReferenceTransform = [^\n]+",
+               f"Seq_Frame0002_ProbeToReferenceTransform = {matrix}", header)
+    with pytest.raises(RecordingError, match=r"Seq_Frame0002_ProbeToReferenceTransform: "
+                                             rf"{message}"):
+        load_recording(write(h))
+
+
+def test_plus_frame_times_with_a_pause_of_days_are_named(plus):
+    """``--realtime`` slept for the pause (OverflowError for 1e300 s)."""
+    header, body, write = plus
+    h = re.sub(r"Seq_Frame0003_Timestamp = [^\n]+", "Seq_Frame0003_Timestamp = 1e300", header)
+    with pytest.raises(RecordingError, match=r"frame 3 comes 1e\+300 s after frame 2, more "
+                                             r"than 3600 s"):
+        load_recording(write(h))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda a: a.update(direction=np.zeros_like(a["direction"])),
+     r"key 'direction': frame 0: a zero vector"),
+    (lambda a: a.pop("direction"), r"key 'direction': is required when tip_mm is given"),
+    (lambda a: a.update(probe_pose=np.array(a["probe_pose"]).astype("U5")),
+     r"key 'probe_pose': must hold real numbers, got dtype <U5"),
+    (lambda a: a.update(timestamps_s=np.zeros(4, "V4")),
+     r"key 'timestamps_s': must hold real numbers"),
+    (lambda a: a.update(tip_mm=np.full_like(a["tip_mm"], np.inf)),
+     r"key 'tip_mm': must be finite, or NaN where unknown"),
+    (lambda a: a.update(spacing_mm=np.array([[0.1], [0.1]])),
+     r"key 'spacing_mm': must be 2 finite numbers, got \[\[0\.1\], \[0\.1\]\]$"),
+    (lambda a: a.update(meta=np.array('{"a": ' + "[" * 100000 + "]" * 100000 + "}")),
+     r"scalar keys modality/dynamic_range_db/meta: maximum recursion depth"),
+])
+def test_npz_labels_and_arrays_the_metrics_cannot_use_are_named(tmp_path, npz, edit, message):
+    """Each of these was a traceback in the metrics, numpy or json (or a message on two
+    lines)."""
+    with np.load(npz) as z:
+        arrays = {k: z[k] for k in z.files}
+    edit(arrays)
+    np.savez(tmp_path / "e.npz", **arrays)
+    with pytest.raises(RecordingError, match=message):
+        load_recording(tmp_path / "e.npz")
+
+
+def test_nrrd_line_skip_space_origin_and_gzip_that_inflates_too_far(tmp_path, deadline):
+    head = ("NRRD0004\ntype: uint8\ndimension: 3\nspace dimension: 2\nsizes: 32 40 3\n"
+            "space directions: (0.1,0) (0,0.1) none\nkinds: domain domain list\n"
+            "encoding: {enc}\n{extra}\n")
+    data = bytes(32 * 40 * 3)
+    cases = [("raw", "line skip: 1000000000\n", data, r"line skip = 1000000000 must be 0 to"),
+             ("raw", "space origin: (0,0,0)\n", data,
+              r"field space origin has 3 values for 2-dimensional space directions"),
+             ("gzip", "", gzip_bytes(bytes(50 << 20)),
+              r"the gzip data inflates to more than the 3840 bytes"),
+             ("raw", "", data[:100], r"truncated: sizes/type need 3840 bytes")]
+    for k, (enc, extra, body, message) in enumerate(cases):
+        p = tmp_path / f"{k}.nrrd"
+        p.write_bytes(head.format(enc=enc, extra=extra).encode() + body)
+        with pytest.raises(RecordingError, match=message):
+            load_recording(p, fps=20)
+    p = tmp_path / "magic.nrrd"
+    p.write_bytes(b"NRRD\n" + head.format(enc="raw", extra="").encode()[9:] + data)
+    with pytest.raises(RecordingError) as exc:
+        load_recording(p, fps=20)
+    assert "\n" not in str(exc.value)  # pynrrd quotes the line with its line break
+
+
+def gzip_bytes(data: bytes) -> bytes:
+    import gzip
+
+    return gzip.compress(data, mtime=0)
