@@ -13,10 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ._base import FeatureSource, Frame, Likelihood
+from ._base import FeatureSource, Frame, FrameError, Likelihood
 from ._resample import (
     NORMALIZATIONS,
     frame_statistics,
+    model_shape,
     normalize,
     pad_to_multiple,
     to_frame_grid,
@@ -30,6 +31,25 @@ SHIPPED_MODELS = {"inplane": "inplane.onnx", "axial": "axial.onnx", "volume": "v
 
 class ModelError(ValueError):
     """A model file that is missing, corrupt, or made for another modality."""
+
+
+DRY_RUN_S = 5.0  # the longest the load-time dry run of a model may take
+MAX_MODEL_PIXELS = 1 << 24  # a frame on the model's grid: 4096^2 pixels or 256^3 voxels
+
+
+def _check_normalization_extras(norm: dict, path: Path) -> None:
+    """The optional entries of a ``robust`` normalisation: ``clip`` two finite numbers, low
+    then high, and ``zero_value`` a finite number."""
+    clip = norm.get("clip", NORMALIZATIONS["robust"]["clip"])
+    zero = norm.get("zero_value", NORMALIZATIONS["robust"]["zero_value"])
+    ok = isinstance(clip, list) and len(clip) == 2 and all(
+        isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c)
+        for c in clip) and clip[0] < clip[1]
+    ok = ok and isinstance(zero, (int, float)) and not isinstance(zero, bool) and \
+        bool(np.isfinite(zero))
+    if not ok:
+        raise ModelError(f"model {path}: metadata normalization clip {clip!r:.40} and "
+                         f"zero_value {zero!r:.40} must be [low, high] and a number, finite")
 
 
 def wall_offsets(cl: np.ndarray, radius_mm: float) -> np.ndarray:
@@ -73,6 +93,8 @@ class LearnedFeatures(FeatureSource):
         path = Path(model)
         if not path.exists():
             raise ModelError(f"model {path} does not exist")
+        if not path.is_file():  # a folder, or a FIFO onnxruntime would wait on for ever
+            raise ModelError(f"model {path} is not a regular file")
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = int(threads)
         opts.inter_op_num_threads = 1
@@ -97,8 +119,8 @@ class LearnedFeatures(FeatureSource):
                 raise ValueError(f"normalization mode {self.normalization['mode']!r}")
             self.stride = int(meta.get("output_stride", 2))
             self.multiple = int(meta.get("input_multiple", 4))
-        except (KeyError, ValueError, TypeError) as exc:
-            raise ModelError(f"model {path}: metadata key {exc} missing or invalid; "
+        except (KeyError, ValueError, TypeError, AttributeError, RecursionError) as exc:
+            raise ModelError(f"model {path}: metadata key {str(exc)[:80]} missing or invalid; "
                              "was it written by 'needlenet export'?") from None
         if modality is not None and modality != self.modality:
             raise ModelError(f"model {path} is a {self.modality!r} model, not {modality!r}")
@@ -131,14 +153,16 @@ class LearnedFeatures(FeatureSource):
         if sp.shape != (nd,) or not np.all((sp >= 0.005) & (sp <= 5.0)):
             raise ModelError(f"model {path}: metadata spacing_mm {list(self.spacing_mm)} must "
                              f"be {nd} values in 0.005-5 mm")
-        if not 1 <= self.stride <= 16 or not 1 <= self.multiple <= 256:
+        max_multiple = 32 if nd == 3 else 256
+        if not 1 <= self.stride <= 16 or not 1 <= self.multiple <= max_multiple:
             raise ModelError(f"model {path}: metadata output_stride {self.stride} and "
-                             f"input_multiple {self.multiple} must be 1-16 and 1-256")
+                             f"input_multiple {self.multiple} must be 1-16 and 1-{max_multiple}")
         n = self.normalization
         if not all(np.isfinite(n[k]) for k in ("scale", "mean", "std")) or n["std"] <= 0 \
                 or n["scale"] <= 0:
             raise ModelError(f"model {path}: metadata normalization {n} needs finite values "
                              "and a positive scale and std")
+        _check_normalization_extras(n, path)
         shape = self.session.get_inputs()[0].shape
         if len(shape) != 2 + nd:
             raise ModelError(f"model {path}: input 'image' has rank {len(shape)}; a "
@@ -146,25 +170,74 @@ class LearnedFeatures(FeatureSource):
         if any(isinstance(d, int) for d in shape[2:]):
             raise ModelError(f"model {path}: input 'image' has fixed spatial axes {shape[2:]}; "
                              "needlenet feeds frames of any size (export with dynamic axes)")
-        side = 4 * self.multiple * (1 if nd == 3 else 2)
+        # the smallest input a model of this multiple takes that is still an image: 32 px
+        # (2D) or 4 voxels (3D) a side, so that a model that blows its input up (or loops)
+        # costs little here and is refused below (measured: a volume model that upsamples
+        # 64x took 1.6 GB on an 8^3 input, 0.2 GB on 4^3)
+        least = 4 if nd == 3 else 32
+        side = self.multiple * -(-least // self.multiple)
         black = np.zeros((side,) * nd, np.float32)  # a black frame, normalised as any frame
         blank = normalize(black, self.normalization,
                           frame_statistics(black, self.normalization))[None, None]
-        try:
-            y = self.session.run(["likelihood"], {"image": blank})[0]
-        except Exception as exc:  # onnxruntime raises its own exception types
-            raise ModelError(f"model {path}: a dry run on a blank {side}-pixel input failed: "
-                             f"{str(exc).splitlines()[0]}") from None
+        y = self._dry_run(blank, path, side)
         if y.ndim != 2 + nd or y.shape[1] != 2:
             raise ModelError(f"model {path}: output 'likelihood' has shape {y.shape} for a "
                              f"{blank.shape} input; expected (batch, 2 maps: shaft, tip, ...)")
+        if not np.issubdtype(y.dtype, np.floating):
+            raise ModelError(f"model {path}: output 'likelihood' is {y.dtype}; expected "
+                             "probabilities (float)")
+        want = side / self.stride
+        if any(abs(k - want) > 1 for k in y.shape[2:]):
+            raise ModelError(f"model {path}: output 'likelihood' has spatial shape "
+                             f"{tuple(y.shape[2:])} for a {side}-pixel input; metadata "
+                             f"output_stride {self.stride} says {side // self.stride} a side")
         if not np.all(np.isfinite(y)):
             raise ModelError(f"model {path}: output 'likelihood' is not finite on a black "
                              "frame")
 
+    def _dry_run(self, blank: np.ndarray, path: Path, side: int) -> np.ndarray:
+        """The model on ``blank``, stopped after :data:`DRY_RUN_S` (a model for real-time
+        tracking takes milliseconds on it)."""
+        import threading
+
+        import onnxruntime as ort
+
+        ro = ort.RunOptions()
+        ro.log_severity_level = 4  # the error is reported below, not logged by onnxruntime
+        timer = threading.Timer(DRY_RUN_S, lambda: setattr(ro, "terminate", True))
+        timer.daemon = True
+        timer.start()
+        try:
+            return self.session.run(["likelihood"], {"image": blank}, ro)[0]
+        except Exception as exc:  # onnxruntime raises its own exception types
+            why = f"took longer than {DRY_RUN_S:g} s" if ro.terminate else \
+                f"failed: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+            raise ModelError(f"model {path}: a dry run on a blank {side}-pixel input {why}"
+                             ) from None
+        finally:
+            timer.cancel()
+
+    def check_frame_size(self, shape, spacing_mm) -> tuple[int, ...]:
+        """The shape a frame of ``shape`` at ``spacing_mm`` takes on the model's grid; a
+        ModelError when it exceeds :data:`MAX_MODEL_PIXELS` (a model made for 0.005 mm
+        pixels would turn a 3D volume at 1 mm into 10^11 voxels)."""
+        grid = model_shape(tuple(shape), tuple(float(s) for s in spacing_mm), self.spacing_mm)
+        n = int(np.prod([float(g) for g in grid]))
+        if n > MAX_MODEL_PIXELS:
+            raise ModelError(f"model {self.path}: frames of {tuple(shape)} pixels at "
+                             f"{[round(float(s), 4) for s in spacing_mm]} mm become {grid} = "
+                             f"{n:.3g} pixels at the model's spacing_mm {list(self.spacing_mm)} "
+                             f"(at most {MAX_MODEL_PIXELS}); use a model made for this spacing")
+        return grid
+
     def run_model(self, image: np.ndarray, spacing_mm, level: float | None = None) -> np.ndarray:
         """Maps (2, *image.shape) in [0, 1] for an image at ``spacing_mm``; ``level``: the
-        whole frame's :func:`frame_statistics` when ``image`` is an ROI of it."""
+        whole frame's :func:`frame_statistics` when ``image`` is an ROI of it. A frame too
+        large on the model's grid (:meth:`check_frame_size`) is a FrameError: no evidence."""
+        try:
+            self.check_frame_size(np.shape(image), spacing_mm)
+        except ModelError as exc:
+            raise FrameError(str(exc)) from None
         x = to_model_grid(image, spacing_mm, self.spacing_mm)
         if level is None:
             level = frame_statistics(image, self.normalization)

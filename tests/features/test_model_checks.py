@@ -70,3 +70,55 @@ def test_nan_from_the_model_is_no_evidence(tmp_path):
     lik = f.likelihood(Frame(seq.images[0], seq.grid(), 0.0))
     for m in (lik.shaft, lik.tip):
         assert np.all(np.isfinite(m)) and m.min() >= 0.0 and m.max() <= 1.0
+
+
+# -- found by the fuzz suite (tests/fuzz) --------------------------------------------------------
+
+def test_a_model_of_ints_or_of_the_wrong_size_is_refused(tmp_path):
+    """An int64 output made OpenCV's resize raise at the first frame; an output 64 times the
+    input's size allocated 1.6 GB in the dry run of a volume model."""
+    from tests.fuzz.cases import make_model
+
+    (tmp_path / "i.onnx").write_bytes(make_model("inplane", op="int64"))
+    with pytest.raises(ModelError, match=r"output 'likelihood' is int64; expected"):
+        LearnedFeatures(tmp_path / "i.onnx", "inplane")
+    (tmp_path / "u.onnx").write_bytes(make_model("volume", op="up64"))
+    with pytest.raises(ModelError, match=r"spatial shape \(256, 256, 256\) for a 4-pixel input"):
+        LearnedFeatures(tmp_path / "u.onnx", "volume")
+    (tmp_path / "m.onnx").write_bytes(make_model("volume", meta={"input_multiple": "256"}))
+    with pytest.raises(ModelError, match=r"input_multiple 256 must be 1-16 and 1-32"):
+        LearnedFeatures(tmp_path / "m.onnx", "volume")
+
+
+def test_a_model_that_never_ends_its_dry_run_is_stopped(tmp_path, monkeypatch):
+    import time
+
+    from needlenet.features import _learned
+    from tests.fuzz.cases import make_model
+
+    monkeypatch.setattr(_learned, "DRY_RUN_S", 0.5)
+    (tmp_path / "slow.onnx").write_bytes(make_model("inplane", op="slow"))
+    t0 = time.perf_counter()
+    with pytest.raises(ModelError, match=r"a dry run on a blank 32-pixel input took longer "
+                                         r"than 0\.5 s"):
+        LearnedFeatures(tmp_path / "slow.onnx", "inplane")
+    assert time.perf_counter() - t0 < 10
+
+
+def test_a_fifo_a_bad_robust_clip_and_a_spacing_too_fine_are_named(tmp_path):
+    import os
+
+    from needlenet.features._base import FrameError
+
+    os.mkfifo(tmp_path / "fifo.onnx")
+    with pytest.raises(ModelError, match=r"fifo\.onnx is not a regular file"):
+        LearnedFeatures(tmp_path / "fifo.onnx", "inplane")
+    norm = {"mode": "robust", "scale": 1, "mean": 0, "std": 1, "clip": "x"}
+    with pytest.raises(ModelError, match=r"normalization clip 'x'"):
+        LearnedFeatures(_model(tmp_path / "c.onnx", normalization=json.dumps(norm)), "inplane")
+    f = LearnedFeatures(_model(tmp_path / "fine.onnx", spacing_mm="[0.005, 0.005]"), "inplane")
+    with pytest.raises(ModelError, match=r"become \(100000, 100000\) = 1e\+10 pixels at the "
+                                         r"model's spacing_mm \[0\.005, 0\.005\]"):
+        f.check_frame_size((1000, 1000), (0.5, 0.5))
+    with pytest.raises(FrameError):  # tracking goes on without evidence, allocates nothing
+        f.run_model(np.zeros((1000, 1000), np.uint8), (0.5, 0.5))
