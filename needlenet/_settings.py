@@ -69,6 +69,17 @@ def _example(annotation):
     return _SCALARS.get(names[0]) if len(names) == 1 else None
 
 
+def _tuple_arity(annotation) -> int | None:
+    """How many items a tuple annotation fixes: ``tuple[float, float]`` -> 2, ``tuple[float,
+    ...]`` -> 0 (any number), anything else (or no tuple among the alternatives) -> None."""
+    for alt in _type_names(annotation):
+        match = re.fullmatch(r"(?:tuple|Tuple)\[(.*)\]", alt)
+        if match:
+            args = [a.strip() for a in match.group(1).split(",")]
+            return 0 if "..." in args else len(args)
+    return None
+
+
 def _expected(default) -> str:
     if isinstance(default, bool):
         return "true or false (or 1/0, yes/no)"
@@ -101,6 +112,9 @@ def convert_setting(name: str, text: str, default, annotation=None):
         example = _example(annotation)
         if example is not None:
             return convert_setting(name, text, example)
+        arity = _tuple_arity(annotation)
+        if arity is not None:  # ``tuple[float, float] | None``: read as that tuple
+            return convert_setting(name, text, (0.0,) * max(arity, 1), annotation)
         value = parse_value(text)
         if isinstance(value, float) and not math.isfinite(value):
             raise ValueError(f"parameter {name}: expected a finite number, got {text!r}")
@@ -137,6 +151,10 @@ def convert_setting(name: str, text: str, default, annotation=None):
         items = [t for t in text.split(",") if t.strip()]
         if not items:
             raise ValueError(f"parameter {name}: expected comma-separated values, got {text!r}")
+        arity = _tuple_arity(annotation)
+        if arity and len(items) != arity:  # tuple[float, float]: exactly two
+            raise ValueError(f"parameter {name}: expected {arity} comma-separated values, got "
+                             f"{text!r}")
         same = len(items) == len(default)
         values = []
         for i, item in enumerate(items):

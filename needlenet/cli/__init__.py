@@ -39,6 +39,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(exc: BaseException) -> str:
+    """An error message as one line: a message that quotes a damaged header or a numpy array
+    may hold line breaks."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -47,11 +53,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
-    except CLIError as exc:
-        print(f"needlenet: error: {exc}", file=sys.stderr)
-        return 2
-    except (FileExistsError, FileNotFoundError, PermissionError) as exc:
-        print(f"needlenet: error: {exc}", file=sys.stderr)
+    except (CLIError, OSError) as exc:
+        # OSError: a file that vanished, a full disk, a name too long, a permission: the
+        # environment's error, as one line (its message names the file)
+        print(f"needlenet: error: {one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("needlenet: interrupted", file=sys.stderr)

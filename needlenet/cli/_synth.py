@@ -6,6 +6,8 @@ from pathlib import Path
 
 from ._common import CLIError, check_output, check_plus_output, seed
 
+MAX_FRAMES = 100_000  # an hour at 25 frames/s
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
@@ -53,9 +55,11 @@ def run(args) -> int:
     preview = check_output(args.preview, ".png", args.overwrite, "preview")
     overrides = _overrides(args, synth.SCENARIOS[args.scenario])
     try:
-        synth.scenario_params(args.scenario, **overrides)  # validate before any work
+        params = synth.scenario_params(args.scenario, **overrides)  # validate before any work
     except (ValueError, TypeError) as exc:
         raise CLIError(f"synth: {exc}") from None
+    _check_readable(params)
+    _check_size(params)
     seq = synth.generate(args.scenario, seed=args.seed, progress=not args.quiet, **overrides)
     if fmt == "plus":
         from ..io import RecordingError, save_plus_sequence
@@ -74,17 +78,95 @@ def run(args) -> int:
     return 0
 
 
-def _overrides(args, cls) -> dict:
-    """The scenario parameters the options and ``--param`` settings change."""
-    from .._settings import parse_value
+def _check_readable(params) -> None:
+    """The numbers a sequence's meta records that its readers check (the insertion speed,
+    the rotation depth: see :func:`needlenet.io._limits.check_meta_numbers`) and its frame
+    rate are in their ranges, so that what synth writes, track reads."""
+    import dataclasses
 
+    from ..io import RecordingError
+    from ..io._limits import check_fps, check_meta_numbers
+
+    try:
+        check_meta_numbers({"params": {f.name: getattr(params, f.name)
+                                       for f in dataclasses.fields(params)}}, "synth")
+        for name in ("frame_rate_hz", "volume_rate_hz"):  # the frame times written
+            if isinstance(getattr(params, name, None), (int, float)):
+                check_fps(getattr(params, name), "synth", name)
+    except RecordingError as exc:
+        raise CLIError(str(exc).replace("synth: meta field params.", "synth: ")) from None
+
+
+def _check_size(params) -> None:
+    """A volume scenario's ``output_size`` makes frames of at most as many voxels as a 2D
+    scenario's frame may have pixels (``synth._scenarios.MAX_FRAME_PIXELS``, which the 2D
+    scenarios check themselves), and all the frames asked for fit this machine's memory."""
+    from synth._scenarios import MAX_FRAME_PIXELS
+
+    from ..io import RecordingError
+    from ..io._limits import check_allocation
+
+    n = getattr(params, "output_size", None)
+    if isinstance(n, int) and not 1 <= n ** 3 <= MAX_FRAME_PIXELS:
+        raise CLIError(f"synth: output_size={n} makes volumes of {n ** 3:.3g} voxels (at most "
+                       f"{MAX_FRAME_PIXELS}, {round(MAX_FRAME_PIXELS ** (1 / 3))}^3)")
+    frames = getattr(params, "frames", None)
+    if isinstance(n, int):
+        shape = (n, n, n)
+    elif all(isinstance(getattr(params, k, None), (int, float))
+             for k in ("spacing_mm", "width_mm", "depth_mm")):
+        sp = params.spacing_mm
+        shape = (params.depth_mm / sp, params.width_mm / sp)
+    else:
+        return
+    if isinstance(frames, int):
+        try:
+            check_allocation((frames, *(max(int(s), 1) for s in shape)), 1, "synth",
+                             "frames x frame size")
+        except RecordingError as exc:
+            raise CLIError(str(exc).replace("; damaged header?", "; ask for fewer frames"))\
+                from None
+
+
+def _field_default(f):
+    import dataclasses
+
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
+
+
+def _overrides(args, cls) -> dict:
+    """The scenario parameters the options and ``--param`` settings change; a setting of a
+    field is read as the field's type (:func:`needlenet._settings.convert_setting`: a float
+    field takes a finite number, an integer a whole one), an unknown name is left for the
+    scenario to refuse by name."""
+    import dataclasses
+    import math
+
+    from .._settings import convert_setting, parse_value
+
+    fields = {f.name: f for f in dataclasses.fields(cls)}
     overrides = {}
     for item in args.param:
         if "=" not in item:
             raise CLIError(f"synth: --param {item!r}: expected NAME=VALUE")
         k, v = item.split("=", 1)
-        overrides[k.strip()] = parse_value(v)
-    names = {f for f in cls.__dataclass_fields__}
+        k = k.strip()
+        if k in fields:
+            try:
+                overrides[k] = convert_setting(k, v, _field_default(fields[k]), fields[k].type)
+            except ValueError as exc:
+                raise CLIError(f"synth: --param {k}: {exc}") from None
+        else:
+            overrides[k] = parse_value(v)
+    for name in ("cr", "speed", "angle"):
+        v = getattr(args, name)
+        if v is not None and not math.isfinite(v):
+            raise CLIError(f"synth: --{name} {v}: expected a finite number")
+    names = set(fields)
     if args.speed is not None:
         if "speed_mm_s" not in names:
             raise CLIError(f"synth: --speed does not apply to scenario {args.scenario!r}")
@@ -99,6 +181,10 @@ def _overrides(args, cls) -> dict:
         v = getattr(args, name)
         if v is not None:
             overrides[name] = v
+    frames = overrides.get("frames")
+    if isinstance(frames, int) and not isinstance(frames, bool) and \
+            not 1 <= frames <= MAX_FRAMES:
+        raise CLIError(f"synth: frames {frames}: expected 1 to {MAX_FRAMES}")
     return overrides
 
 

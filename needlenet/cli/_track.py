@@ -75,6 +75,9 @@ def run(args) -> int:
     seq = _load(args)
     if args.tracker is None:
         args.tracker = seq.modality
+        if args.angle is not None and args.tracker != "inplane":
+            raise CLIError(f"track: --angle is for the inplane tracker; {args.file} holds "
+                           f"{args.tracker!r} frames")
         _check_method(args)
         params = _track_params(args)
     if seq.modality != args.tracker:
@@ -82,6 +85,7 @@ def run(args) -> int:
                        f"({seq.ndim}D); the {args.tracker!r} tracker needs "
                        f"{'3D volumes' if args.tracker == 'volume' else args.tracker + ' images'}")
     tracker = _make_tracker(args, params)
+    _check_model_grid(tracker, seq)
     estimates = _run_tracker(args, tracker, seq)
     _report(args, seq, estimates, out_json, overlay, out_plus)
     return 0
@@ -93,10 +97,11 @@ def _check_outputs(args):
     inputs = _input_files(args.file)
     out_json = check_output(args.json_out, ".json", args.overwrite, "--json", inputs)
     overlay = None
-    if args.overlay:
+    if args.overlay is not None:
         suffix = Path(args.overlay).suffix.lower()
         if suffix not in (".gif", ".mp4", ".avi"):
-            raise CLIError(f"--overlay {args.overlay}: use .gif, .mp4 or .avi")
+            shown = args.overlay if args.overlay.strip() else repr(args.overlay)
+            raise CLIError(f"--overlay {shown}: use .gif, .mp4 or .avi")
         overlay = check_output(args.overlay, suffix, args.overwrite, "--overlay", inputs)
     out_plus = None if args.out_plus is None else \
         check_plus_output(args.out_plus, args.overwrite, "--out-plus", inputs)
@@ -104,12 +109,45 @@ def _check_outputs(args):
 
 
 def _input_files(path: str) -> tuple[Path, ...]:
-    """The recording and the files it reads beside it (an .mhd's or .nhdr's data file)."""
+    """The recording and the files it reads beside it: an .mhd's or .nhdr's data file (the
+    one its header names, and those named like it), the sidecar JSON of a video or a folder
+    of frames, and the frames of a folder."""
+    from ..io._frames import VIDEO_SUFFIXES, sidecar_path
+
     p = Path(path)
     out = [p]
-    if p.suffix.lower() in (".mhd", ".nhdr"):
-        out += [p.with_suffix(s) for s in (".raw", ".zraw", ".raw.gz")]
+    suffix = p.suffix.lower()
+    try:
+        if suffix in (".mhd", ".nhdr"):
+            out += [p.with_suffix(s) for s in (".raw", ".zraw", ".raw.gz")]
+            out += _named_data_files(p) if p.is_file() else []  # never open a FIFO
+        if p.is_dir() or suffix in VIDEO_SUFFIXES:
+            out += [p / "frames.json"] if p.is_dir() else \
+                [p.with_suffix(".json"), p.with_name(p.name + ".json")]
+            sc = sidecar_path(p)
+            out += [sc] if sc is not None else []
+        if p.is_dir():
+            out += [f for f in p.iterdir()]
+    except OSError:  # unreadable: reading it will say so
+        pass
     return tuple(out)
+
+
+def _named_data_files(header: Path) -> list[Path]:
+    """The data files a MetaImage (``ElementDataFile = ...``) or detached NRRD (``data
+    file: ...``) header names, read from its first 64 KiB."""
+    import re
+
+    with open(header, "rb") as fh:
+        text = fh.read(1 << 16).decode("utf-8", "replace")
+    names = re.findall(r"^\s*(?:ElementDataFile\s*=|data ?file\s*:)\s*(.+?)\s*$", text,
+                       re.MULTILINE | re.IGNORECASE)
+    out = []
+    for n in names:
+        for part in [n, *n.split()]:
+            q = Path(part)
+            out.append(q if q.is_absolute() else header.parent / q)
+    return out
 
 
 def _check_method(args) -> None:
@@ -176,6 +214,19 @@ def _make_tracker(args, params):
         raise CLIError(f"track: {exc}") from None
 
 
+def _check_model_grid(tracker, seq) -> None:
+    """A learned model's grid fits the recording's frames (see
+    :meth:`~needlenet.features.LearnedFeatures.check_frame_size`), checked before tracking."""
+    from ..features._learned import LearnedFeatures, ModelError
+
+    features = getattr(tracker, "features", None)
+    if isinstance(features, LearnedFeatures):
+        try:
+            features.check_frame_size(seq.images.shape[1:], seq.spacing_mm)
+        except ModelError as exc:
+            raise CLIError(f"track: {exc}") from None
+
+
 def _open_stream(args):
     if args.igtl is None:
         return None
@@ -201,6 +252,7 @@ def _run_tracker(args, tracker, seq) -> list:
 
     from synth._render import Progress
 
+    from ..io._limits import MAX_GAP_S
     from ..trackers._base import frames_from_sequence
 
     streamer = _open_stream(args)
@@ -210,8 +262,9 @@ def _run_tracker(args, tracker, seq) -> list:
     start = time.perf_counter()
     try:
         for i, frame in enumerate(frames_from_sequence(seq)):
-            if args.realtime:
-                time.sleep(max(0.0, (ts[i] - ts[0]) - (time.perf_counter() - start)))
+            if args.realtime:  # the reader allows pauses of up to an hour between frames
+                time.sleep(min(max(0.0, (ts[i] - ts[0]) - (time.perf_counter() - start)),
+                               MAX_GAP_S))
             est = tracker.update(frame)
             estimates.append(est)
             bar.update()
@@ -243,12 +296,14 @@ def _report(args, seq, estimates, out_json, overlay, out_plus) -> None:
         summary.update(latency_summary(estimates))
     statuses = [e.status.value for e in estimates]
     summary["status_counts"] = {s: statuses.count(s) for s in sorted(set(statuses))}
-    print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}, indent=1))
+    summary = finite_json(summary)
+    print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}, indent=1,
+                     allow_nan=False))
     if out_json is not None:
         from ..io._atomic import atomic_write
 
-        text = json.dumps({"frames": [e.to_json() for e in estimates], "summary": summary},
-                          indent=1, default=float)
+        text = json.dumps(finite_json({"frames": [e.to_json() for e in estimates],
+                                       "summary": summary}), indent=1, allow_nan=False)
         atomic_write({out_json: lambda fh: fh.write(text.encode())}, overwrite=True)
         print(f"wrote {out_json}")
     if overlay is not None:
@@ -264,3 +319,30 @@ def _report(args, seq, estimates, out_json, overlay, out_plus) -> None:
         except RecordingError as exc:
             raise CLIError(f"--out-plus: {exc}") from None
         print(f"wrote {out_plus}")
+
+
+def finite_json(obj):
+    """``obj`` (dicts, lists, numbers, numpy scalars and arrays) as plain JSON values with
+    every NaN or infinity as None (``null``): a metric that is undefined (no frame tracked)
+    or a score a tracker could not compute is reported as missing, never as ``NaN``, which
+    is not JSON."""
+    import math
+
+    import numpy as np
+
+    if isinstance(obj, dict):
+        return {str(k): finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return finite_json(obj.tolist())
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if obj is None or isinstance(obj, str):
+        return obj
+    return str(obj)

@@ -218,3 +218,106 @@ def test_png_folder_with_spacing_on_the_command_line(seq, tmp_path, capsys):
     shift = np.array(seq.origin_mm[::-1]) - [3.0, 2.0]
     err = [np.linalg.norm(t + shift - seq.tip_mm[i]) for i, t in tips]
     assert len(tips) >= 8 and np.median(err) < 1.0
+
+
+# -- found by the fuzz suite (tests/fuzz) --------------------------------------------------------
+
+def test_undefined_metrics_are_null_never_nan(seq, tmp_path, capsys):
+    """A labelled recording where nothing is tracked: the error statistics are undefined, and
+    were printed (and written to --json) as NaN, which is not JSON."""
+    dark = synth.Sequence(**{**seq.as_dict(), "images": np.zeros_like(seq.images)})
+    src = synth.save_sequence(dark, tmp_path / "dark.npz")
+    out = tmp_path / "r.json"
+    assert main(["track", str(src), "--method", "kf", "--features", "classical", "--quiet",
+                 "--json", str(out)]) == 0
+
+    def strict(text):
+        return json.loads(text, parse_constant=lambda c: pytest.fail(f"{c} in the output"))
+
+    printed = capsys.readouterr().out
+    summary = strict(printed[:printed.rindex("}") + 1])
+    assert summary["tip_error_median_mm"] is None or "tip_error_median_mm" not in summary
+    assert strict(out.read_text())["summary"]["frames"] == 12
+
+
+def test_output_names_too_long_or_looping_are_refused_before_work(sitk_file, tmp_path, capsys):
+    track = ["track", str(sitk_file), "--method", "kf", "--features", "classical", "--quiet"]
+    assert main([*track, "--json", str(tmp_path / ("x" * 300 + ".json"))]) == 2
+    _one_line_error(capsys, "longer than this file system allows")
+    (tmp_path / "loop.json").symlink_to(tmp_path / "loop.json")  # was a RuntimeError
+    assert main([*track, "--json", str(tmp_path / "loop.json")]) == 2
+    _one_line_error(capsys, "loop.json exists; pass --overwrite")
+    long = tmp_path / ("y" * 245 + ".json")  # fits; the temporary name beside it must too
+    assert main([*track, "--json", str(long)]) == 0
+    assert json.loads(long.read_text())["summary"]["frames"] == 12
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["loop.json", long.name]
+
+
+def test_a_dangling_symlink_an_empty_name_or_a_sidecar_is_no_new_output(seq, sitk_file,
+                                                                           tmp_path, capsys):
+    """A dangling symlink was replaced without --overwrite; ``--overlay ''`` was ignored;
+    ``--json`` could replace a video's sidecar."""
+    track = ["track", str(sitk_file), "--method", "kf", "--features", "classical", "--quiet"]
+    (tmp_path / "d.json").symlink_to(tmp_path / "nowhere" / "x.json")
+    assert main([*track, "--json", str(tmp_path / "d.json")]) == 2
+    _one_line_error(capsys, "d.json exists; pass --overwrite")
+    assert (tmp_path / "d.json").is_symlink()
+    assert main([*track, "--overlay", ""]) == 2
+    _one_line_error(capsys, "--overlay ''")
+    video = tmp_path / "clip.avi"
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 20,
+                        seq.images.shape[:0:-1], False)
+    for im in seq.images:
+        w.write(im)
+    w.release()
+    sidecar = tmp_path / "clip.json"
+    sidecar.write_text(json.dumps({"spacing_mm": 0.1}))
+    assert main(["track", str(video), "--quiet", "--features", "classical", "--json",
+                 str(sidecar), "--overwrite"]) == 2
+    _one_line_error(capsys, "is the input")
+    assert json.loads(sidecar.read_text()) == {"spacing_mm": 0.1}
+
+
+def test_an_mhd_output_whose_name_its_header_cannot_hold(sitk_file, tmp_path, capsys):
+    """The data file is named in the header: a line break in it wrote an unreadable file."""
+    track = ["track", str(sitk_file), "--method", "kf", "--features", "classical", "--quiet"]
+    assert main([*track, "--out-plus", str(tmp_path / "r\nx.mhd")]) == 2
+    _one_line_error(capsys, "cannot be read back; use .mha")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_angle_and_tuples_are_checked_against_the_tracker_that_runs(tmp_path, capsys):
+    vol = synth.save_sequence(synth.generate("volume", seed=1, frames=1, output_size=24,
+                                             background="homogeneous"), tmp_path / "v.npz")
+    assert main(["track", str(vol), "--angle", "45", "--quiet"]) == 2  # was a TypeError
+    _one_line_error(capsys, "--angle is for the inplane tracker", "'volume' frames")
+    src = synth.save_sequence(synth.generate("inplane", seed=1, frames=2, width_mm=10.0,
+                                             depth_mm=10.0), tmp_path / "i.npz")
+    assert main(["track", str(src), "--method", "kfv", "--features", "classical", "--quiet",
+                 "--param", "axis.background_band_mm=-0"]) == 2  # was a ValueError mid-run
+    _one_line_error(capsys, "axis.background_band_mm: expected 2 comma-separated values")
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--param", "frame_rate_hz="], "frame_rate_hz: parameter frame_rate_hz: expected a number"),
+    (["--param", "stop_length_mm=nan"], "expected a finite number"),
+    (["--speed", "1e9"], "speed_mm_s = 1000000000.0 must be a number in 0.0-1000.0"),
+    (["--param", "frame_rate_hz=1e9"], "frame_rate_hz = 1000000000.0 frames/s is outside"),
+    (["--frames", "100001"], "frames 100001: expected 1 to 100000"),
+    (["--angle", "nan"], "--angle nan: expected a finite number"),
+])
+def test_synth_settings_are_read_as_their_fields_and_written_readable(tmp_path, capsys, args,
+                                                                       message):
+    """Each was a traceback inside the simulator, or a file track could not read."""
+    out = tmp_path / "s.npz"
+    assert main(["synth", "inplane", "--out", str(out), "--frames", "2", "--quiet",
+                 *args]) == 2
+    _one_line_error(capsys, message)
+    assert not out.exists()
+
+
+def test_synth_volume_too_large_is_refused_before_work(tmp_path, capsys):
+    out = tmp_path / "v.npz"
+    assert main(["synth", "volume", "--out", str(out), "--param", "output_size=2000",
+                 "--quiet"]) == 2  # allocated 7.5 GiB
+    _one_line_error(capsys, "output_size=2000 makes volumes of 8e+09 voxels")
