@@ -148,10 +148,13 @@ def validate_sequence(seq: Sequence, source: str = "sequence") -> Sequence:
         if np.any(~known & ~np.isnan(d).all(axis=1)):
             raise _err(source, "direction", f"frame {int(np.flatnonzero(~known)[0])} is "
                        "partly NaN; a direction is known (finite) or not (all NaN)")
-        norm = np.linalg.norm(d[known], axis=1)
-        if np.any(~(norm > 1e-6)):
-            raise _err(source, "direction", f"frame {int(np.flatnonzero(known)[0])}: a zero "
-                       "vector; directions are unit vectors (NaN where unknown)")
+        with np.errstate(over="ignore", invalid="ignore"):
+            norm = np.linalg.norm(d[known], axis=1)
+        bad = ~((norm > 1e-6) & (norm < 1e6))
+        if np.any(bad):
+            raise _err(source, "direction", f"frame {int(np.flatnonzero(known)[bad][0])}: a "
+                       f"vector of length {float(norm[bad][0]):.3g}; directions are unit "
+                       "vectors (NaN where unknown)")
     if seq.centerline_mm is not None:
         c = np.asarray(seq.centerline_mm)
         if c.ndim != 3 or c.shape[0] != T or c.shape[2] not in (2, 3):

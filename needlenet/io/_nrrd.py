@@ -214,8 +214,9 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
     spacing = None
     unit = []
     if dirs is not None and all(np.all(np.isfinite(dirs[a])) for a in spatial):
-        spacing = np.array([np.linalg.norm(dirs[a]) for a in spatial])
-        unit = [dirs[a] / max(np.linalg.norm(dirs[a]), 1e-300) for a in spatial]
+        with np.errstate(over="ignore", invalid="ignore"):  # 1e300: refused by the spacing
+            spacing = np.array([np.linalg.norm(dirs[a]) for a in spatial])
+            unit = [dirs[a] / max(np.linalg.norm(dirs[a]), 1e-300) for a in spatial]
     elif "spacings" in header:
         sp = np.asarray(header["spacings"], float)
         if sp.shape == (nd,) and np.all(np.isfinite(sp[spatial])):

@@ -37,6 +37,7 @@ from ._frames import (
     sidecar_path,
 )
 from ._limits import (
+    MAX_POSITION_MM,
     check_extent,
     check_fps,
     check_frame_times,
@@ -230,6 +231,19 @@ def _labels_from_plus(plus: PlusSequence, pose, modality, grid, src) -> dict:
     elif modality == "volume":
         return {}  # Zhao's metrics need the entry point; without it the labels are unusable
     return out
+
+
+def _check_label_positions(v, src: str, key: str) -> None:
+    """Label positions (NaN where unknown) within :data:`~._limits.MAX_POSITION_MM` of the
+    probe: a tip at 1e300 mm overflows every error computed from it."""
+    if v is None:
+        return
+    a = np.asarray(v, float)
+    far = np.isfinite(a) & (np.abs(a) > MAX_POSITION_MM)
+    if np.any(far):
+        frame = int(np.argwhere(far)[0][0])
+        raise RecordingError(f"{src}: {key} of frame {frame} lies more than "
+                             f"{MAX_POSITION_MM:g} mm from the probe")
 
 
 def _drop_invalid_frames(seq_kw: dict, image_ok: np.ndarray, src: str) -> str:
@@ -437,6 +451,8 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
     if seq_kw.get("probe_pose") is not None:
         check_transforms(seq_kw["probe_pose"], np.ones(len(seq_kw["probe_pose"]), bool), src,
                          "probe_pose (frame NNNN)")
+    for key in ("tip_mm", "entry_mm", "tip_3d_mm", "centerline_mm"):
+        _check_label_positions(seq_kw.get(key), src, key)
     try:
         return synth.validate_sequence(synth.Sequence(**seq_kw), source=src)
     except synth.SequenceFileError as exc:

@@ -314,7 +314,11 @@ def test_plus_frame_times_with_a_pause_of_days_are_named(plus):
 
 @pytest.mark.parametrize("edit, message", [
     (lambda a: a.update(direction=np.zeros_like(a["direction"])),
-     r"key 'direction': frame 0: a zero vector"),
+     r"key 'direction': frame 0: a vector of length 0"),
+    (lambda a: a.update(direction=np.full_like(a["direction"], 1e300)),
+     r"key 'direction': frame 0: a vector of length inf"),
+    (lambda a: a.update(tip_mm=np.full_like(a["tip_mm"], 1e300)),
+     r"tip_mm of frame 0 lies more than 100000 mm from the probe"),
     (lambda a: a.pop("direction"), r"key 'direction': is required when tip_mm is given"),
     (lambda a: a.update(probe_pose=np.array(a["probe_pose"]).astype("U5")),
      r"key 'probe_pose': must hold real numbers, got dtype <U5"),
