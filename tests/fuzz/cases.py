@@ -503,15 +503,19 @@ def fam_npz_bytes(rng, base: Base) -> dict:
 
 
 def _npz(arrays: dict) -> bytes:
+    """The arrays (or raw member bytes) as an .npz; members carry a fixed time stamp, so the
+    same arrays give the same bytes (zipfile would stamp the current time)."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
         for k, v in arrays.items():
+            info = zipfile.ZipInfo(f"{k}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
             if isinstance(v, bytes):
-                zf.writestr(f"{k}.npy", v)
+                zf.writestr(info, v)
                 continue
             b = io.BytesIO()
             np.lib.format.write_array(b, np.asanyarray(v), allow_pickle=False)
-            zf.writestr(f"{k}.npy", b.getvalue())
+            zf.writestr(info, b.getvalue())
     return buf.getvalue()
 
 
