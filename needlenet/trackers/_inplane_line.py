@@ -56,6 +56,8 @@ from ._base import NeedleEstimate, Status, Tracker
 
 __all__ = ["LineTrackerParams", "LineTracker"]
 
+_MAX_DISTANCE_MM = 100.0  # the distances of the settings: a fraction of any image
+
 
 @dataclass(frozen=True)
 class LineTrackerParams:
@@ -131,6 +133,14 @@ class LineTrackerParams:
             raise ValueError(f"needle_radius_mm must be >= 0, got {self.needle_radius_mm}")
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
             raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
+        for name in ("edge_margin_mm", "entry_margin_mm", "mask_edge_mm", "track_window_mm",
+                     "contrast_window_mm", "min_length_mm"):
+            if not 0.0 <= getattr(self, name) <= _MAX_DISTANCE_MM:
+                raise ValueError(f"{name} must lie in 0-{_MAX_DISTANCE_MM:g} mm, got "
+                                 f"{getattr(self, name)}")
+        if not 0.0 < self.track_window_deg <= 90.0:
+            raise ValueError(f"track_window_deg must lie in (0, 90], got "
+                             f"{self.track_window_deg}")
 
 
 def line_contrast(image: np.ndarray, window_px: int) -> np.ndarray:

@@ -243,3 +243,12 @@ def test_a_black_vessel_inside_the_image_is_no_edge_of_the_view():
     shaft = _line_map(h, w, (30, 184), (120, 94), width=3)
     est = LineTracker(features=_MapSource(shaft)).update(Frame(image=image, grid=g, t=0.0))
     assert est.status == Status.TRACKING, est.extras.get("reason")
+
+
+@pytest.mark.parametrize("name, value", [("edge_margin_mm", 2147483648.0),
+                                         ("entry_margin_mm", float("nan")),
+                                         ("track_window_deg", 0.0)])
+def test_settings_beyond_any_image_are_refused(name, value):
+    """Issue 21's fuzz: edge_margin_mm=2^31 ran the edge search out of memory."""
+    with pytest.raises(ValueError, match=name):
+        LineTrackerParams(**{name: value})
