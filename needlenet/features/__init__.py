@@ -3,10 +3,11 @@
 from ._base import FeatureSource, Frame, FrameError, IntensityFeatures, Likelihood, check_frame
 from ._frangi import FrangiFeatures, FrangiParams
 from ._learned import LearnedFeatures, ModelError
+from ._line_contrast import line_contrast
 from ._variance import VarianceFeatures
 
 __all__ = ["FeatureSource", "Frame", "FrameError", "IntensityFeatures", "Likelihood",
-           "check_frame", "learned_features", "LearnedFeatures", "ModelError",
+           "check_frame", "learned_features", "LearnedFeatures", "ModelError", "line_contrast",
            "VarianceFeatures", "FrangiFeatures", "FrangiParams"]
 
 

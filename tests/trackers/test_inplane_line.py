@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 import synth
+from needlenet.features import line_contrast
 from needlenet.features._base import Frame
 from needlenet.trackers._base import Status
-from needlenet.trackers._inplane_line import LineTracker, LineTrackerParams, line_contrast
+from needlenet.trackers._inplane_line import LineTracker, LineTrackerParams
 
 SCENE = dict(frames=16, speed_mm_s=10.0, depth_mm=30.0, start_length_mm=15.0)
 
