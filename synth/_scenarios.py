@@ -148,6 +148,11 @@ class _Base:
         _check_positive("scatterers_per_cell", self.scatterers_per_cell)
         _check_positive("dynamic_range_db", self.dynamic_range_db)
         _check_frame_size(self)
+        a, b = getattr(self, "start_length_mm", None), getattr(self, "stop_length_mm", None)
+        if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not (
+                np.isfinite(a) and np.isfinite(b) and 0.0 <= a < b):
+            raise ValueError(f"need 0 <= start_length_mm < stop_length_mm (finite), got "
+                             f"{a} and {b}")
 
     def imaging(self) -> ImagingParams:
         return self._with_overrides(ImagingParams(

@@ -393,6 +393,10 @@ class MathiassenAngleParams:
     r_theta_deg2: float = 4.0**2  # R_theta = 4^2
     p0_theta_deg2: float = 10.0**2  # P(0) = 10^2
 
+    def __post_init__(self) -> None:
+        for name in ("q_theta_deg2", "r_theta_deg2", "p0_theta_deg2"):
+            _positive(name, getattr(self, name))
+
 
 class MathiassenAngleFilter:
     """Scalar random-walk Kalman filter smoothing the estimated insertion angle (section II-A3,

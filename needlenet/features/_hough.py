@@ -47,6 +47,23 @@ class DFParams:
     close_mm: float = 2.1
     min_run_mm: float = 2.0
 
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.threshold_sd):
+            raise ValueError(f"DFParams.threshold_sd must be finite, got {self.threshold_sd}")
+        for name in ("half_range_deg", "coarse_step_deg", "fine_step_deg",
+                     "fine_half_range_deg"):
+            v = getattr(self, name)
+            if not 0.0 < v <= 90.0:
+                raise ValueError(f"DFParams.{name} must lie in (0, 90] degrees, got {v}")
+        for name in ("close_mm", "min_run_mm"):
+            v = getattr(self, name)
+            if not 0.0 < v <= 100.0:
+                raise ValueError(f"DFParams.{name} must lie in (0, 100] mm, got {v}")
+        lo, hi = self.full_range_deg
+        if not 0.0 <= lo < hi <= 90.0:
+            raise ValueError(f"DFParams.full_range_deg must lie in [0, 90], got "
+                             f"{self.full_range_deg}")
+
 
 @dataclass(frozen=True)
 class DFResult:

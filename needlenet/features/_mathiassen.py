@@ -141,6 +141,14 @@ class MathiassenParams:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"MathiassenParams.{name} must be positive, got {v}")
+            if name.endswith("_mm") and v > _MAX_MM:
+                raise ValueError(f"MathiassenParams.{name} must be at most {_MAX_MM:g} mm, "
+                                 f"got {v}")
+        for name in ("sq_shift_mm", "bevel_shift_mm"):
+            v = getattr(self, name)
+            if not 0.0 <= v <= _MAX_MM:
+                raise ValueError(f"MathiassenParams.{name} must lie in 0-{_MAX_MM:g} mm, "
+                                 f"got {v}")
         if not 1 <= self.min_rays <= self.n_rays:
             raise ValueError(f"need 1 <= min_rays <= n_rays, got {self.min_rays}, {self.n_rays}")
         if self.peak_window_bins < 0 or self.delta_frames < 1:
@@ -148,6 +156,9 @@ class MathiassenParams:
         lo, hi = self.full_range_deg
         if not 0.0 < lo < hi < 90.0:
             raise ValueError(f"full_range_deg must lie in (0, 90), got {self.full_range_deg}")
+
+
+_MAX_MM = 100.0  # no distance of the search or the features spans more of an image
 
 
 # --------------------------------------------------------------------------- geometry

@@ -178,3 +178,9 @@ def test_a_spacing_that_makes_absurd_frames_is_refused_before_allocating(name):
     """Issue 21: ``synth inplane --param spacing_mm=1e-6`` had reached 7.5 GB."""
     with pytest.raises(ValueError, match=r"spacing_mm=1e-06 over .* makes frames of .* pixels"):
         synth.generate(name, seed=0, frames=2, spacing_mm=1e-6)
+
+
+@pytest.mark.parametrize("name", ["inplane", "volume"])
+def test_insertion_lengths_are_checked_before_building(name):
+    with pytest.raises(ValueError, match=r"need 0 <= start_length_mm < stop_length_mm"):
+        synth.scenario_params(name, stop_length_mm=-1.0).validate()

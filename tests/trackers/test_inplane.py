@@ -213,3 +213,17 @@ def test_a_needle_from_the_left_is_tracked_on_mirrored_frames(sequences, method)
     fixed = InplaneTracker(method, expected_angle_deg=35, rng=0,
                            params=InplaneParams(entry_side="right")).run(left)
     assert np.mean(np.isfinite(_errors(fixed, left))) < 0.5  # the paper's corner misses it
+
+
+@pytest.mark.parametrize("setting, message", [
+    ("df.half_range_deg=1e9", "DFParams.half_range_deg must lie in"),
+    ("angle.q_theta_deg2=-0", "q_theta_deg2 must be positive"),
+    ("axis.sq_shift_mm=-1", "MathiassenParams.sq_shift_mm must lie in"),
+    ("axis.ray_length_mm=1e9", "MathiassenParams.ray_length_mm must be at most")])
+def test_settings_the_methods_cannot_run_are_refused_when_read(setting, message):
+    """Issue 21's fuzz: these had failed at the first frame (a 15 GiB Hough accumulator, a
+    Kalman filter's ValueError, np.pad's traceback)."""
+    from needlenet.trackers._registry import tracker_params
+
+    with pytest.raises(ValueError, match=message):
+        tracker_params("inplane", [setting], "kf+f")
