@@ -77,7 +77,7 @@ def test_nan_from_the_model_is_no_evidence(tmp_path):
 def test_a_model_of_ints_or_of_the_wrong_size_is_refused(tmp_path):
     """An int64 output made OpenCV's resize raise at the first frame; an output 64 times the
     input's size allocated 1.6 GB in the dry run of a volume model."""
-    from tests.fuzz.cases import make_model
+    from tests.fuzz.cases._base import make_model
 
     (tmp_path / "i.onnx").write_bytes(make_model("inplane", op="int64"))
     with pytest.raises(ModelError, match=r"output 'likelihood' is int64; expected"):
@@ -94,7 +94,7 @@ def test_a_model_that_never_ends_its_dry_run_is_stopped(tmp_path, monkeypatch):
     import time
 
     from needlenet.features import _learned
-    from tests.fuzz.cases import make_model
+    from tests.fuzz.cases._base import make_model
 
     monkeypatch.setattr(_learned, "DRY_RUN_S", 0.5)
     (tmp_path / "slow.onnx").write_bytes(make_model("inplane", op="slow"))

@@ -12,18 +12,9 @@ import pytest
 
 from needlenet.io import RecordingError, load_recording
 
-from .cases import (
-    _npy_header,
-    _npz_members,
-    deflate_zeros,
-    join_mha,
-    join_nrrd,
-    nrrd_set,
-    set_field,
-    split_mha,
-    split_nrrd,
-    zip_bytes,
-)
+from .cases._base import join_mha, join_nrrd, nrrd_set, set_field, split_mha, split_nrrd
+from .cases._npz_plus import _npy_header
+from .cases._special import _npz_members, deflate_zeros, zip_bytes
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +27,7 @@ def files(tmp_path_factory):
                          start_length_mm=3.0, background="homogeneous")
     npz = synth.save_sequence(seq, d / "s.npz").read_bytes()
     mha = save_plus_sequence(seq, d / "s.seq.mha")[0].read_bytes()
-    from .cases import _nrrd_2d
+    from .cases._base import _nrrd_2d
 
     nrrd = _nrrd_2d(seq.images, seq.spacing_mm, seq.timestamps_s)
     return d, npz, mha, nrrd, deflate_zeros(b"", 2560)
