@@ -266,7 +266,7 @@ class LineTracker(Tracker):
         def straight_mm(point: np.ndarray) -> float:
             """Distance (mm) from ``point`` to the edge of ``inner`` in any direction (up to
             ``reach``)."""
-            return _distance_to_edge_around(inner, frame, point, max_mm=reach)
+            return _distance_to_edge(inner, frame, point, _AROUND, max_mm=reach)
 
         def ends(seg: NeedleLine) -> tuple[float, float, float]:
             """(start's and end's distance outwards along the line, the entry end's distance
@@ -552,31 +552,18 @@ _AROUND = np.stack([np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False)),
                     np.sin(np.linspace(0, 2 * np.pi, 24, endpoint=False))], -1)
 
 
-def _distance_to_edge_around(valid: np.ndarray, frame: Frame, point: np.ndarray,
-                             step_mm: float = 0.2, max_mm: float = 200.0) -> float:
-    """How far (mm) from ``point`` the imaged region ends in the nearest of 24 directions."""
+def _distance_to_edge(valid: np.ndarray, frame: Frame, start: np.ndarray,
+                      direction: np.ndarray, step_mm: float = 0.2,
+                      max_mm: float = 200.0) -> float:
+    """How far (mm) from ``start`` the imaged region ends along ``direction`` (2,), or along
+    the nearest of several directions (D, 2)."""
+    dirs = np.asarray(direction, float).reshape(-1, 2)
     s = np.arange(0.0, max_mm, step_mm)
-    pts = point[None, None] + s[None, :, None] * _AROUND[:, None, :]  # (24, S, 2)
+    pts = start[None, None] + s[None, :, None] * dirs[:, None, :]  # (D, S, 2)
     idx = np.rint(frame.grid.points_to_index(pts.reshape(-1, 2))).astype(int)
     h, w = valid.shape
     inside = (idx[:, 0] >= 0) & (idx[:, 0] < h) & (idx[:, 1] >= 0) & (idx[:, 1] < w)
     ok = np.zeros(len(idx), bool)
     ok[inside] = valid[idx[inside, 0], idx[inside, 1]]
-    out = ~ok.reshape(len(_AROUND), len(s)).all(axis=0)  # some direction is outside
-    first = np.flatnonzero(out)
-    return float(s[first[0]]) if first.size else float(max_mm)
-
-
-def _distance_to_edge(valid: np.ndarray, frame: Frame, start: np.ndarray,
-                      direction: np.ndarray, step_mm: float = 0.2,
-                      max_mm: float = 200.0) -> float:
-    """How far (mm) from ``start`` along ``direction`` the imaged region ends."""
-    s = np.arange(0.0, max_mm, step_mm)
-    idx = np.rint(frame.grid.points_to_index(start[None] + s[:, None] * direction[None]))
-    idx = idx.astype(int)
-    h, w = valid.shape
-    inside = (idx[:, 0] >= 0) & (idx[:, 0] < h) & (idx[:, 1] >= 0) & (idx[:, 1] < w)
-    ok = np.zeros(len(s), bool)
-    ok[inside] = valid[idx[inside, 0], idx[inside, 1]]
-    out = np.flatnonzero(~ok)
+    out = np.flatnonzero(~ok.reshape(len(dirs), len(s)).all(axis=0))
     return float(s[out[0]]) if out.size else float(max_mm)
