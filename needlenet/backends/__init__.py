@@ -3,6 +3,7 @@ the bicycle model, insertion detection, line search and speckle tracking. Import
 here; the modules behind (``_ransac``, ``_kalman``, ...) are private."""
 
 
+from ._axis_profile import AxisTip, sample_along_axis, tip_along_axis
 from ._bicycle import (
     CarriereParams,
     CarriereParticleFilter,
@@ -85,16 +86,8 @@ from ._particle import (
     stratified_resample,
     systematic_resample,
 )
-from ._ransac import (
-    AxisTip,
-    LineModel,
-    PolyCurveModel,
-    RansacResult,
-    adaptive_trial_count,
-    ransac,
-    sample_along_axis,
-    tip_along_axis,
-)
+from ._ransac import RansacResult, adaptive_trial_count, ransac
+from ._ransac_models import LineModel, PolyCurveModel
 
 __all__ = [
     "AdaptiveNoise", "AxisTip", "CarriereParams", "CarriereParticleFilter", "Detection",

@@ -7,17 +7,17 @@ import pytest
 from skimage.measure import LineModelND
 from skimage.measure import ransac as sk_ransac
 
-from needlenet.backends._ransac import (
+from needlenet.backends import (
     AxisTip,
     LineModel,
     PolyCurveModel,
     RansacResult,
-    _draw_samples,
     adaptive_trial_count,
     ransac,
     sample_along_axis,
     tip_along_axis,
 )
+from needlenet.backends._ransac import _draw_samples
 
 
 def _line_points(rng, origin, direction, n, half_length, noise):
