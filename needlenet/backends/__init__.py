@@ -38,19 +38,13 @@ from ._insertion import (
 from ._kalman import (
     KalmanFilter,
     LinearModel,
-    MathiassenAngleFilter,
-    MathiassenAngleParams,
-    MathiassenTipFilter,
-    MathiassenTipParams,
     UpdateResult,
     angles_to_direction,
-    candidate_posterior,
     chatelain_control_points_model,
     chi2_gate,
     direction_to_angles,
     mahalanobis,
     predict,
-    tip_candidates,
     update,
     zhao_model,
 )
@@ -63,6 +57,14 @@ from ._line_search import (
     line_segment,
     refine_line,
     working_map,
+)
+from ._mathiassen_kf import (
+    MathiassenAngleFilter,
+    MathiassenAngleParams,
+    MathiassenTipFilter,
+    MathiassenTipParams,
+    candidate_posterior,
+    tip_candidates,
 )
 from ._ncc import (
     SpeckleMatch,

@@ -4,6 +4,7 @@
 import numpy as np
 import pytest
 
+from needlenet.backends import KalmanFilter, chatelain_control_points_model
 from needlenet.backends._ekf import (
     AdaptiveNoise,
     ExtendedKalmanFilter,
@@ -11,7 +12,6 @@ from needlenet.backends._ekf import (
     ye_prv_model,
     ye_pv_model,
 )
-from needlenet.backends._kalman import KalmanFilter, chatelain_control_points_model
 
 FS_HZ = 25.0  # Ye 2025, section 4.1
 

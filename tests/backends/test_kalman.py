@@ -1,10 +1,10 @@
 """Tests of the linear Kalman filter and the models of Chatelain 2013, Zhao 2013 and
-Mathiassen 2017 (needlenet/backends/_kalman.py)."""
+Mathiassen 2017 (needlenet/backends/_kalman.py, _mathiassen_kf.py)."""
 
 import numpy as np
 import pytest
 
-from needlenet.backends._kalman import (
+from needlenet.backends import (
     KalmanFilter,
     MathiassenAngleFilter,
     MathiassenAngleParams,

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from needlenet.backends._kalman import KalmanFilter, angles_to_direction
+from needlenet.backends import KalmanFilter, angles_to_direction
 from needlenet.servo import (
     CALIBRATION_SEEDS,
     Measurement,
