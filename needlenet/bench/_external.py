@@ -98,11 +98,12 @@ def _summary(err, n_needle, n_tracked, n_free, n_false) -> dict:
     }
 
 
-def _track(seq: synth.Sequence, kind: str, seed: int):
+def _track(seq: synth.Sequence, kind: str, seed: int, model: str | None = None):
     from ..trackers import _registry
 
     method = getattr(_registry, "DEFAULT_METHODS", {"inplane": "kf+f"})["inplane"]
-    tracker = _registry.make_tracker("inplane", method, kind, seed=seed)
+    tracker = _registry.make_tracker("inplane", method, kind,
+                                     model if kind == "learned" else None, seed=seed)
     return method, tracker.run(seq)
 
 
@@ -114,23 +115,31 @@ def _describe(seq: synth.Sequence) -> dict:
 
 
 def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
-        directory: str | Path | None = None) -> dict:
+        directory: str | Path | None = None, model: str | Path | None = None) -> dict:
     """Track every sequence of the set with classical and learned features; one row per
-    sequence and features, then one pooled row per features."""
+    sequence and features, then one pooled row per features. ``directory``: another set of
+    labelled in-plane sequence files (every ``.npz`` in it, all of them even with ``quick``);
+    ``model``: the learned features' ONNX model (default: the shipped one)."""
     from ._trackers import _feature_kinds, _tier
 
     tier = _tier(quick, tier)
     rows = [] if rows is None else rows
     names = QUICK_SEQUENCES if tier == "quick" and directory is None else None
     seqs = external_sequences(directory, names)
-    log(f"  external: {len(seqs)} sequences, {sum(s.n_frames for _, s in seqs)} frames")
+    for name, seq in seqs:
+        if seq.modality != "inplane":
+            raise ValueError(f"bench external: {name}.npz holds a {seq.modality!r} sequence; "
+                             "the suite tracks in-plane sequences")
+    model = None if model is None else str(model)
+    log(f"  external: {len(seqs)} sequences, {sum(s.n_frames for _, s in seqs)} frames"
+        + (f", learned features from {model}" if model else ""))
 
     traces = {}
     for kind in _feature_kinds("inplane", log):
         per = []
         method = None
         for i, (name, seq) in enumerate(seqs):
-            method, est = _track(seq, kind, seed + i)
+            method, est = _track(seq, kind, seed + i, model)
             needle, free = frame_classes(seq)
             tracking = np.array([e.status.value == "tracking" for e in est])
             tip_est = np.array([np.full(2, np.nan) if e.tip_mm is None
@@ -142,7 +151,8 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
             traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est}
             lat = np.array([e.latency_ms for e in est], float)
             row = {"suite": "external", "tracker": "inplane", "method": method,
-                   "features": kind, "sequence": name, **_describe(seq),
+                   "features": kind, "model": model if kind == "learned" else None,
+                   "sequence": name, **_describe(seq),
                    "frames": seq.n_frames, "seed": seed + i,
                    **{k: v for k, v in m.items() if k != "tip_errors_mm"},
                    "latency_median_ms": float(np.median(lat))}
@@ -152,6 +162,7 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
                 f"{_fmt(row['tracked_fraction'])}, false {_fmt(row['false_tracking_fraction'])}")
         pm = pooled_metrics(per)
         row = {"suite": "external", "tracker": "inplane", "method": method, "features": kind,
+               "model": model if kind == "learned" else None,
                "sequence": "pooled", "probe": None, "needle": None, "side": None,
                "angle_deg": None, "feature": None,
                "frames": int(sum(s.n_frames for _, s in seqs)), "seed": seed,
@@ -179,7 +190,8 @@ def markdown(result: dict, machine: dict) -> str:
         if r["sequence"] == "pooled":
             needle = "-"
         elif r["needle"]:
-            needle = f"{r['side']} {r['angle_deg']:g}°"
+            needle = " ".join(v for v in (r["side"], None if r["angle_deg"] is None else
+                                          f"{r['angle_deg']:g}°") if v) or "yes"
         else:
             needle = "none"
         name = f"**{r['sequence']}**" if r["sequence"] == "pooled" else r["sequence"]

@@ -198,11 +198,17 @@ def comparison_markdown(suite: str, comp: list[dict]) -> str:
 
 def run_suite(name: str, quick: bool = False, json_out: str | Path | None = None,
               seed: int = 0, log=print, report_dir: str | Path | None = None,
-              tier: str | None = None, overwrite: bool = False) -> dict:
+              tier: str | None = None, overwrite: bool = False, data: str | Path | None = None,
+              model: str | Path | None = None) -> dict:
     """Run suite ``name`` and return its result (``rows``, ``markdown``, ``comparison``; the
-    per-frame ``traces`` for plots stay out of the JSON)."""
+    per-frame ``traces`` for plots stay out of the JSON). The external suite also takes
+    ``data`` (a directory of labelled sequence files instead of the shipped set) and
+    ``model`` (an in-plane ONNX model for the learned features instead of the shipped one)."""
     if name not in SUITES:
         raise ValueError(f"unknown suite {name!r}; available: {', '.join(SUITES)}")
+    own = {"directory": data, "model": model} if name == "external" else {}
+    if name != "external" and (data is not None or model is not None):
+        raise ValueError(f"bench {name}: --data and --model belong to the external suite")
     tier = tier or ("quick" if quick else "full")
     if report_dir is not None:
         report_dir = check_report_dir(report_dir, overwrite)
@@ -237,7 +243,7 @@ def run_suite(name: str, quick: bool = False, json_out: str | Path | None = None
     result["rows"] = rows
     t0 = time.perf_counter()
     try:
-        out = mod.run(tier=tier, seed=seed, log=log, rows=rows)
+        out = mod.run(tier=tier, seed=seed, log=log, rows=rows, **own)
     except KeyboardInterrupt:
         result["interrupted"] = True
         result["elapsed_s"] = time.perf_counter() - t0

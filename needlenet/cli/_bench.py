@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 from ._common import CLIError, check_output, seed
 
@@ -21,6 +22,13 @@ def add_parser(sub) -> None:
                                                    "finish, so an interrupted run keeps them)")
     p.add_argument("--report", help="write a report directory: report.md, results.json, plots")
     p.add_argument("--seed", type=seed, default=0)
+    p.add_argument("--data", metavar="DIR",
+                   help="external suite: a directory of labelled in-plane sequence files "
+                        "(.npz, needlenet's sequence format) to run instead of the shipped "
+                        "PyMUST set, e.g. your own labelled recordings")
+    p.add_argument("--model", metavar="F.onnx",
+                   help="external suite: the in-plane model for the learned features "
+                        "(default: the shipped one)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing --json file or report")
     p.set_defaults(func=run)
@@ -37,9 +45,23 @@ def run(args) -> int:
             check_report_dir(args.report, args.overwrite)
         except ValueError as exc:
             raise CLIError(str(exc)) from None
+    if args.suite != "external" and (args.data is not None or args.model is not None):
+        raise CLIError(f"bench {args.suite}: --data and --model belong to the external suite")
+    if args.data is not None and not Path(args.data).is_dir():
+        raise CLIError(f"bench external: --data {args.data}: not a directory")
+    if args.model is not None:
+        from ..features import learned_features
+
+        try:  # the checks every model passes before it tracks anything
+            learned_features("inplane", args.model)
+        except ValueError as exc:  # ModelError included
+            raise CLIError(f"bench external: --model: {exc}") from None
     try:
         result = run_suite(args.suite, quick=args.quick, json_out=out, seed=args.seed,
-                           report_dir=args.report, overwrite=args.overwrite)
+                           report_dir=args.report, overwrite=args.overwrite, data=args.data,
+                           model=args.model)
+    except FileNotFoundError as exc:
+        raise CLIError(f"bench {args.suite}: {exc}") from None
     except BenchInterrupted as exc:
         print(f"needlenet: {exc}", file=sys.stderr)
         return 130

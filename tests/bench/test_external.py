@@ -119,3 +119,43 @@ def test_the_suite_is_registered():
     from needlenet.bench import HEADLINE, SUITES
 
     assert "external" in SUITES and HEADLINE["external"] == "tip_error_p95_mm"
+
+
+def test_a_users_set_and_model_run_through_the_cli(tmp_path, capsys):
+    from importlib import resources
+
+    from needlenet.cli import main
+
+    seq = synth.generate("inplane", seed=4, frames=3, width_mm=20, depth_mm=25)
+    synth.save_sequence(seq, tmp_path / "mine.npz")
+    model = str(resources.files("needlenet").joinpath("models", "inplane.onnx"))
+    out = tmp_path / "rows.json"
+    assert main(["bench", "external", "--data", str(tmp_path), "--model", model,
+                 "--json", str(out)]) == 0
+    import json
+
+    rows = json.loads(out.read_text())["rows"]
+    learned = [r for r in rows if r["features"] == "learned"]
+    assert [r["sequence"] for r in learned] == ["mine", "pooled"]
+    assert all(r["model"] == model for r in learned)
+    assert all(r["model"] is None for r in rows if r["features"] == "classical")
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["bench", "latency", "--data", "."], "--data and --model belong to the external suite"),
+    (["bench", "external", "--data", "/nonexistent-dir"], "not a directory"),
+    (["bench", "external", "--model", "README.md"], "cannot be loaded by onnxruntime"),
+])
+def test_bad_external_options_are_refused_before_work(argv, message, capsys):
+    from needlenet.cli import main
+
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_set_with_another_modality_is_refused(tmp_path):
+    seq = synth.generate("axial", seed=1, insertion_mm=12.0)
+    synth.save_sequence(seq, tmp_path / "ax.npz")
+    with pytest.raises(ValueError, match="ax.npz holds a 'axial' sequence"):
+        ext.run(tier="quick", log=lambda m: None, directory=tmp_path)
