@@ -2,14 +2,17 @@
 
 Every world draws its scenario and imaging from one place (:func:`randomize`): insertion
 angles and speeds, contrast, gauge, depth, inhomogeneous backgrounds with bright distractors,
-tissue motion, needles partly out of plane, frames with no needle at all, and the scanner
+tissue and probe motion (axial and volume worlds), needles partly out of plane, frames with no
+needle at all, and the scanner
 itself (centre frequency, bandwidth, f-numbers, foci, dynamic range, gain, TGC, noise,
 speckle density, needle echo, reverberation, shadow), so that the model does not learn one
 simulator's look. In-plane worlds go further (:func:`randomize_inplane`): needles from either
 side through the skin or the lateral border at 3-85 degrees, gauges 14-25, specular or diffuse
 shafts with or without reverberation tails, bright or dark bevels, 3-15 MHz, compounding, TGC
 curves, grey maps, capture margins, sector masks, probe-face reverberation, interfaces parallel
-to the needle, vessels, shadows and needle-free worlds. Frames are resampled to the model's
+to the needle, vessels, shadows and needle-free worlds. In-plane tissue stays still: the network
+sees one frame at a time, where motion changes nothing but costs a fresh tissue image per frame
+(five times the data cost per step). Frames are resampled to the model's
 spacing with the runtime's own function.
 
 Targets (on the network's output grid, half the input resolution): shaft = a Gaussian of the
@@ -148,7 +151,6 @@ def randomize(modality: str, rng: np.random.Generator,
             "depth_mm": _u(rng, 28, 50), "start_length_mm": start,
             "stop_length_mm": start + 30.0, "out_of_plane_deg": _u(rng, -3, 3),
             "elevation_offset_mm": float(rng.normal(0, 0.7)),
-            "tissue_motion_mm": _u(rng, 0, 2) if rng.random() < 0.3 else 0.0,
         }
     if modality == "inplane":
         return "inplane", randomize_inplane(rng, common)
@@ -249,9 +251,6 @@ def randomize_inplane(rng: np.random.Generator, common: dict) -> dict:
         "spacing_mm": _u(rng, 0.1, 0.3), "width_mm": width, "depth_mm": depth,
         "start_length_mm": start, "stop_length_mm": start + 30.0,
         "out_of_plane_deg": _u(rng, -4, 4), "elevation_offset_mm": float(rng.normal(0, 0.5)),
-        # a moving tissue is imaged afresh every frame: only in worlds cheap to image
-        "tissue_motion_mm": _u(rng, 0, 2) if _maybe(rng, 0.3) and imaging["compound_looks"] == 1
-        and imaging["center_frequency_mhz"] < 8.0 else 0.0,
         "needle_free": _maybe(rng, 0.1),
         "vessels": int(rng.integers(1, 3)) if _maybe(rng, 0.25) else 0,
         "shadows": int(rng.integers(1, 3)) if _maybe(rng, 0.15) else 0,
@@ -499,15 +498,22 @@ def sample_from_sequence(seq, i: int, cfg: DataConfig, rng: np.random.Generator 
 
 
 class SynthStream(IterableDataset):
-    """An endless, seeded stream of (image, target) samples from freshly simulated worlds."""
+    """An endless, seeded stream of (image, target) samples from freshly simulated worlds.
 
-    def __init__(self, cfg: DataConfig):
+    Each data-generating process draws its own worlds: the stream of process ``rank`` (the
+    trainer's global rank under DDP) and DataLoader worker ``w`` is seeded with ``(seed, rank
+    * workers + w)``, so no two processes of a run simulate the same world, and a one-process
+    run (rank 0) draws what it always drew."""
+
+    def __init__(self, cfg: DataConfig, rank: int = 0):
         self.cfg = cfg
+        self.rank = int(rank)
 
     def __iter__(self):
         info = torch.utils.data.get_worker_info()
         wid = 0 if info is None else info.id
-        rng = np.random.default_rng([self.cfg.seed, wid])
+        stream = self.rank * max(self.cfg.num_workers, 1) + wid
+        rng = np.random.default_rng([self.cfg.seed, stream])
         buf: list = []
         while True:
             name, kw = randomize(self.cfg.modality, rng, self.cfg)
@@ -563,7 +569,8 @@ class SynthDataModule(L.LightningDataModule):
             # spawn, not fork: the parent already runs OpenMP (torch, numba), and forking a
             # process that did is unsafe
             kw = {"multiprocessing_context": "spawn", "persistent_workers": True}
-        return DataLoader(SynthStream(self.cfg), batch_size=self.cfg.batch_size,
+        rank = self.trainer.global_rank if self.trainer is not None else 0
+        return DataLoader(SynthStream(self.cfg, rank), batch_size=self.cfg.batch_size,
                           num_workers=self.cfg.num_workers, **kw)
 
     def val_dataloader(self):

@@ -71,7 +71,8 @@ class LikelihoodModule(L.LightningModule):
         x, y = batch
         logits = self.net(x)
         loss = likelihood_loss(logits, y, tuple(self.hparams.get("pos_weight", (20.0, 50.0))))
-        self.log(f"{stage}/loss", loss, prog_bar=stage == "train", batch_size=x.shape[0])
+        self.log(f"{stage}/loss", loss, prog_bar=stage == "train", batch_size=x.shape[0],
+                 sync_dist=stage != "train")
         return loss, logits
 
     def training_step(self, batch, batch_idx):
@@ -92,10 +93,11 @@ class LikelihoodModule(L.LightningModule):
         self._val = []
         auc = np.nanmean(a[:, 0]) if np.isfinite(a[:, 0]).any() else float("nan")
         tip = a[:, 1][np.isfinite(a[:, 1])]
-        self.log("val/shaft_auc", float(auc))
+        # under DDP every process validates on the whole held-out set: the values agree
+        self.log("val/shaft_auc", float(auc), sync_dist=True)
         if tip.size:
-            self.log("val/tip_error_median_mm", float(np.median(tip)))
-            self.log("val/tip_within_1mm", float((tip <= 1.0).mean()))
+            self.log("val/tip_error_median_mm", float(np.median(tip)), sync_dist=True)
+            self.log("val/tip_within_1mm", float((tip <= 1.0).mean()), sync_dist=True)
 
     def configure_optimizers(self):
         opt = torch.optim.AdamW(self.parameters(), lr=self.hparams.lr,

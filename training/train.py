@@ -42,6 +42,10 @@ class TrainConfig:
     # Lightning's accelerator: "cpu" (the shipped recipes), "gpu" or "auto". On a GPU machine
     # the simulation, not the network, is the bottleneck: give it the cores (num_workers).
     accelerator: str = "cpu"
+    # processes per machine and machines: more than one process in all trains with Lightning's
+    # DDP strategy (gloo on CPUs, NCCL on GPUs), each process simulating its own worlds
+    devices: int = 1
+    num_nodes: int = 1
     verbose: bool = True
     data: DataConfig = field(default_factory=DataConfig)
 
@@ -49,9 +53,10 @@ class TrainConfig:
         if self.accelerator not in ACCELERATORS:
             raise ValueError(f"accelerator must be one of {', '.join(ACCELERATORS)}, got "
                              f"{self.accelerator!r}")
-        if self.steps < 1 or self.val_every < 1 or self.threads < 1:
-            raise ValueError("steps, val_every and threads must be at least 1, got "
-                             f"{self.steps}, {self.val_every}, {self.threads}")
+        for name in ("steps", "val_every", "threads", "devices", "num_nodes"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a whole number >= 1, got {value!r}")
         if not self.lr > 0:
             raise ValueError(f"lr must be positive, got {self.lr}")
         if self.width is not None and (not isinstance(self.width, int) or self.width < 1):
@@ -163,7 +168,7 @@ def train(config: TrainConfig) -> dict:
                            float(outputs))
 
         def on_validation_end(self, trainer, pl_module):
-            if trainer.sanity_checking or not config.verbose:
+            if trainer.sanity_checking or not config.verbose or not trainer.is_global_zero:
                 return
             m = {k: round(float(v), 4) for k, v in trainer.callback_metrics.items()
                  if k.startswith("val/")}
@@ -171,7 +176,12 @@ def train(config: TrainConfig) -> dict:
             print(f"step {trainer.global_step:5d}  train/loss {loss:.4f}  {m}  "
                   f"{time.time() - t0:.0f} s", flush=True)
 
-    trainer = L.Trainer(max_steps=config.steps, accelerator=config.accelerator, devices=1,
+    distributed = config.devices * config.num_nodes > 1
+    trainer = L.Trainer(max_steps=config.steps, accelerator=config.accelerator,
+                        devices=config.devices, num_nodes=config.num_nodes,
+                        strategy="ddp" if distributed else "auto",
+                        # every process validates on the whole (small) held-out set
+                        use_distributed_sampler=False,
                         val_check_interval=config.val_every, check_val_every_n_epoch=None,
                         limit_val_batches=1.0, logger=False, callbacks=[ckpt, _Loss()],
                         enable_progress_bar=False, enable_model_summary=False,
@@ -185,12 +195,15 @@ def train(config: TrainConfig) -> dict:
         metrics = {k: float(v) for k, v in trainer.validate(module, datamodule=dm,
                                                             verbose=False)[0].items()}
     final = out / "model.ckpt"
-    trainer.save_checkpoint(final)
+    trainer.save_checkpoint(final)  # written by global rank 0 only
     metrics.update({"val_loss_initial": float(initial[0]["val/loss"]),
                     "train_seconds": time.time() - t0, "steps": config.steps,
+                    "processes": config.devices * config.num_nodes,
                     "parameters": count_parameters(net), "checkpoint": str(final),
                     "loss_first": float(np.mean(history[:20])) if history else float("nan"),
                     "loss_last": float(np.mean(history[-20:])) if history else float("nan")})
-    (out / "config.json").write_text(json.dumps(asdict(config), indent=1))
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    if trainer.is_global_zero:
+        (out / "config.json").write_text(json.dumps(asdict(config), indent=1))
+        (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    metrics["global_rank"] = trainer.global_rank
     return metrics

@@ -39,6 +39,13 @@ def add_train_parser(sub) -> None:
     p.add_argument("--accelerator", default="cpu", choices=("cpu", "gpu", "auto"),
                    help="where the network trains (default cpu, as the shipped models did; "
                         "on a GPU machine the simulation is the bottleneck: raise --workers)")
+    p.add_argument("--devices", type=int, default=1,
+                   help="training processes on this machine (default 1); more than one process "
+                        "in all trains with Lightning's DDP strategy (gloo on CPUs, NCCL on "
+                        "GPUs), each with its own simulated worlds")
+    p.add_argument("--num-nodes", type=int, default=1,
+                   help="machines (default 1); launch one copy of this command per machine "
+                        "as Lightning expects (SLURM's srun, or torchrun's environment)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="change one setting of the recipe: a field of training.train."
                         "TrainConfig or of its DataConfig, e.g. --param width=16 --param "
@@ -51,8 +58,10 @@ def add_train_parser(sub) -> None:
 def run_train(args) -> int:
     if args.model not in ("inplane", "axial", "volume"):
         raise CLIError(f"train: unknown model {args.model!r}; choose inplane, axial or volume")
-    if args.steps is not None and args.steps < 1:
-        raise CLIError(f"train: --steps must be positive, got {args.steps}")
+    for flag, value in (("--steps", args.steps), ("--devices", args.devices),
+                        ("--num-nodes", args.num_nodes)):
+        if value is not None and value < 1:
+            raise CLIError(f"train: {flag} must be at least 1, got {value}")
     export = check_output(args.export, ".onnx", args.overwrite, "--export")
     _require_training("train")
     from training.train import train
@@ -68,6 +77,8 @@ def run_train(args) -> int:
     if (out / "model.ckpt").exists() and not args.overwrite:
         raise CLIError(f"train: {out / 'model.ckpt'} exists; pass --overwrite or --out DIR")
     metrics = train(cfg)
+    if metrics.pop("global_rank", 0) != 0:
+        return 0  # a DDP worker process: rank 0 reports and exports
     for k, v in metrics.items():
         print(f"{k}: {v}")
     if export is not None:
@@ -89,17 +100,20 @@ def _config(args):
     from training.train import config_for, settings_for
 
     changes = {"seed": args.seed, "num_workers": args.workers,
-               "accelerator": args.accelerator}
+               "accelerator": args.accelerator, "devices": args.devices,
+               "num_nodes": args.num_nodes}
     if args.steps is not None:
         changes["steps"] = args.steps
     if args.out:
         changes["out_dir"] = args.out
     try:
         settings = settings_for(args.model, args.param)
-        own = sorted(set(settings) & {"seed", "num_workers", "accelerator", "steps", "out_dir"})
+        own = sorted(set(settings) & {"seed", "num_workers", "accelerator", "steps", "out_dir",
+                                      "devices", "num_nodes"})
         if own:
             raise ValueError(f"set {', '.join(own)} with its own option (--seed, --workers, "
-                             "--accelerator, --steps, --out), not --param")
+                             "--accelerator, --steps, --out, --devices, --num-nodes), not "
+                             "--param")
         return config_for(args.model, **changes, **settings)
     except ValueError as exc:
         raise CLIError(f"train: --param: {exc}") from None
