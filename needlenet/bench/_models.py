@@ -168,8 +168,9 @@ def evaluate_model(modality: str, source: LearnedFeatures, n_sequences: int, fra
                     bound.append(float(np.linalg.norm(est - true_tip)))
                     # what a user gets from the map: the tracker's one-volume measurement
                     # (whole-volume RANSAC on the map, axis and tip placed on the image)
-                    m = VolumeTracker("ransac", features=_Cached(lk), rng=0).update(
-                        Frame(seq.images[i], g)).extras.get("measured_tip_mm")
+                    details = VolumeTracker("ransac", features=_Cached(lk), rng=0).update(
+                        Frame(seq.images[i], g)).details
+                    m = None if details is None else details.measured_tip_mm
                     tracked.append(math.inf if m is None
                                    else float(np.linalg.norm(np.asarray(m) - true_tip)))
         log(f"  {modality} held-out sequence {k}: AUC so far {np.nanmean(aucs):.4f}")

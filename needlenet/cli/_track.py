@@ -269,9 +269,8 @@ def _run_tracker(args, tracker, seq) -> list:
             estimates.append(est)
             bar.update()
             if streamer is not None:
-                entry = est.extras.get("entry_mm", est.extras.get("axis_point_mm"))
                 streamer.send_frame(seq.images[i], seq.spacing_mm, est.tip_mm, est.direction,
-                                    entry, est.status, origin=seq.origin_mm,
+                                    est.axis_point_mm, est.status, origin=seq.origin_mm,
                                     probe_pose=None if seq.probe_pose is None
                                     else seq.probe_pose[i], timestamp=None)
     finally:

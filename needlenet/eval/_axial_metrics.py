@@ -32,6 +32,7 @@ from synth import invert_rigid
 
 from ..backends import shape_error, tip_error
 from ..trackers._base import NeedleEstimate, Status
+from ..trackers._details import AxialDetails
 
 __all__ = ["AxialMetrics", "axial_errors", "axial_metrics", "eq8_shape_error"]
 
@@ -145,8 +146,8 @@ def axial_errors(estimates: list[NeedleEstimate], seq,
         An axial sequence with labels (``tip_mm``, ``visible``, ``probe_pose``).
     prediction_depth_mm : float, optional
         The prediction judged is that of the last frame at or before this depth that has a
-        model. Default: the rotation depth D the tracker reports (``extras
-        ["rotation_depth_mm"]``), else the sequence's ``meta["params"]["rotation_depth_mm"]``,
+        model. Default: the rotation depth D the tracker reports (``details.model.
+        rotation_depth_mm``), else the sequence's ``meta["params"]["rotation_depth_mm"]``,
         else the last frame with a model.
     """
     T = seq.n_frames
@@ -162,11 +163,11 @@ def axial_errors(estimates: list[NeedleEstimate], seq,
     err = np.full(T, np.nan)
     for k in np.flatnonzero(tracking & visible):
         err[k] = float(np.linalg.norm(np.asarray(estimates[k].tip_mm, float) - truth[k]))
-    depth = np.array([float(e.extras.get("depth_mm", np.nan)) for e in estimates])
-
-    def timing(key):
-        return np.array([float(e.extras.get(key, np.nan)) for e in estimates])
-
+    # a frame the tracker could not measure (a constant image) has no details
+    details = [e.details if isinstance(e.details, AxialDetails) else None for e in estimates]
+    depth = np.array([np.nan if d is None else float(d.depth_mm) for d in details])
+    image_ms = np.array([np.nan if d is None else float(d.image_ms) for d in details])
+    filter_ms = np.array([np.nan if d is None else float(d.filter_ms) for d in details])
     latency = np.array([float(e.latency_ms) for e in estimates])
     n_vis, n_inv = int(visible.sum()), int((~visible).sum())
     det = float((tracking & visible).sum() / n_vis) if n_vis else np.nan
@@ -175,11 +176,11 @@ def axial_errors(estimates: list[NeedleEstimate], seq,
     # the prediction made from the data up to D
     D = prediction_depth_mm
     if D is None:
-        reported = [e.extras.get("rotation_depth_mm") for e in estimates]
-        reported = [d for d in reported if d is not None]
+        reported = [d.model.rotation_depth_mm for d in details
+                    if d is not None and d.model.rotation_depth_mm is not None]
         params = seq.meta.get("params", {}) if isinstance(seq.meta, dict) else {}
         D = reported[-1] if reported else params.get("rotation_depth_mm")
-    has_model = np.array([e.extras.get("shape_u_mm") is not None for e in estimates])
+    has_model = np.array([d is not None and d.model.shape_u_mm is not None for d in details])
     candidates = np.flatnonzero(has_model & (depth <= (np.inf if D is None else D) + 1e-9))
     u_true = np.full(T, np.nan)
     u_pred = np.full(T, np.nan)
@@ -187,14 +188,14 @@ def axial_errors(estimates: list[NeedleEstimate], seq,
     final = int(np.flatnonzero(visible)[-1]) if n_vis else -1
     if candidates.size == 0 or final < 0:
         return AxialMetrics(err, depth, u_true, u_pred, -1, final, nan, nan, nan, nan, det,
-                            false, latency, timing("image_ms"), timing("filter_ms"))
+                            false, latency, image_ms, filter_ms)
     j = int(candidates[-1])
-    ex = estimates[j].extras
-    origin_j = np.asarray(ex["origin_xz_mm"], dtype=float)
-    axis_j = np.asarray(ex["u_axis_xz"], dtype=float)
-    shape_v = np.asarray(ex["shape_v_mm"], dtype=float)
-    shape_u = np.asarray(ex["shape_u_mm"], dtype=float)
-    origin_depth = float(ex["origin_depth_mm"])
+    model = details[j].model
+    origin_j = np.asarray(model.origin_xz_mm, dtype=float)
+    axis_j = np.asarray(model.u_axis_xz, dtype=float)
+    shape_v = np.asarray(model.shape_v_mm, dtype=float)
+    shape_u = np.asarray(model.shape_u_mm, dtype=float)
+    origin_depth = float(model.origin_depth_mm)
 
     # labelled crossing at the origin's depth (interpolated between labelled slices)
     lab = np.flatnonzero(visible & np.isfinite(depth))
@@ -218,4 +219,4 @@ def axial_errors(estimates: list[NeedleEstimate], seq,
     inside = lab[depth[lab] >= origin_depth - 1e-9]
     shape = eq8_shape_error(depth[inside], u_true[inside], u_pred[inside])  # eq. (8)
     return AxialMetrics(err, depth, u_true, u_pred, j, final, float(tip), transverse, absolute,
-                        shape, det, false, latency, timing("image_ms"), timing("filter_ms"))
+                        shape, det, false, latency, image_ms, filter_ms)

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..backends import direction_to_angles
+from ..trackers._details import VolumeDetails
 
 if TYPE_CHECKING:  # pragma: no cover
     from synth import Sequence
@@ -87,7 +88,7 @@ class VolumeEvaluation:
     failure : (T,) bool
         Visible frames whose tip or axis error exceeds ``failure_mm``, or without estimate.
     ransac_trials, latency_ms : (T,)
-        From the estimates (``extras["ransac_trials"]``, NaN when absent).
+        From the estimates (``details.ransac_trials``, NaN without details).
     summary : dict
         See :func:`evaluate_volume`.
     """
@@ -129,7 +130,7 @@ def evaluate_volume(estimates: list[NeedleEstimate], seq: Sequence,
     ----------
     estimates : list of NeedleEstimate
         One per frame of ``seq``, as :meth:`Tracker.run` returns them. The estimated axis is
-        the line through ``extras["axis_point_mm"]`` (or the tip) along ``direction``.
+        the line through ``axis_point_mm`` (or the tip) along ``direction``.
     seq : synth.Sequence
         Needs the labels ``tip_mm``, ``entry_mm``, ``direction`` and ``visible``.
     failure_mm : float
@@ -166,13 +167,14 @@ def evaluate_volume(estimates: list[NeedleEstimate], seq: Sequence,
     latency = np.array([float(e.latency_ms) for e in estimates])
     tracking = np.array([getattr(e.status, "value", e.status) == "tracking" for e in estimates])
     for i, e in enumerate(estimates):  # one estimate per frame: a loop over frames
-        if "ransac_trials" in e.extras:
-            trials[i] = float(e.extras["ransac_trials"])
+        if isinstance(e.details, VolumeDetails):
+            trials[i] = float(e.details.ransac_trials)
         if e.tip_mm is None or e.direction is None:
             continue
         tip_est[i] = np.asarray(e.tip_mm, float)
         dir_est[i] = np.asarray(e.direction, float)
-        point_est[i] = np.asarray(e.extras.get("axis_point_mm", e.tip_mm), float)
+        point_est[i] = np.asarray(e.tip_mm if e.axis_point_mm is None else e.axis_point_mm,
+                                  float)
     estimated = np.all(np.isfinite(tip_est), axis=1) & np.all(np.isfinite(dir_est), axis=1)
     estimated &= np.linalg.norm(np.nan_to_num(dir_est), axis=1) > 0
 

@@ -37,7 +37,7 @@ Where the paper leaves things open, or where we depart from it (each is a field 
   ``drift_correction=False`` is the paper's plain update.
 * Outliers: a match is rejected when its NCC peak is below ``ncc_min`` or it jumps more than
   ``max_jump_mm`` (+ ``max_slope`` per mm of depth) from the last accepted centre; a rejected
-  frame is reported at the ROI's centre (``extras["outlier"] = True``), is not fed to the
+  frame is reported at the ROI's centre (``details.outlier``), is not fed to the
   filter and does not update the template; after ``max_coast_frames`` rejections in a row the
   needle is ``lost``. It is lost at once when the matched place no longer stands out of the
   smoothed map (robust score below ``lost_score``): the cross-section vanished, e.g. the
@@ -46,7 +46,7 @@ Where the paper leaves things open, or where we depart from it (each is a field 
 * The ROI is centred on the model's prediction (the paper), except when that prediction lies
   more than ``max_jump_mm`` from the previous centre: a model that far off (early, or long
   after D) would put the needle outside the ROI, so the previous centre is used instead
-  (``extras["roi_source"]``).
+  (``details.roi_source``).
 * phi is re-estimated by PCA from all accepted centres at every frame (the paper computes it
   at 10 mm, where a needle of R = 1500 mm has deflected by 0.03 mm and PCA returns noise), the
   history is projected again, and the u axis is oriented so that the deflection is positive
@@ -69,21 +69,15 @@ D = 60 or 80 mm) the paper's filter predicts the tip within 0.05-0.16 mm for rad
 prior mean of 1500 mm but 1.1-1.5 mm for R = 800 mm (its R stays near 1500 mm); "lsq"
 predicts it within 0.01-0.04 mm in both cases.
 
-Reported per frame (``predicted_u_mm`` is the model's prediction for the slice before the
-slice's own update, the ROI's centre; the other model extras are after it): ``tip_mm`` = the
-cross-section centre (x, z) in the probe frame (where the shaft crosses the slice, the
-sequence file's axial label); ``direction`` = the unit (x, z)
+Reported per frame: ``tip_mm`` = the cross-section centre (x, z) in the probe frame (where
+the shaft crosses the slice, the sequence file's axial label); ``direction`` = the unit (x, z)
 component of the predicted shaft tangent at the slice, i.e. the deflection axis signed by
 du/dv (the sequence file's axial ``direction``), ``None`` before the model exists;
 ``covariance`` (x, z) mm^2 from the curvature of the NCC peak (a heuristic: (1 - peak) /
-|d2 NCC / dpx^2| per axis, at least 1/12 px^2). Extras: ``depth_mm``, ``ncc_peak``,
-``predicted_u_mm``, ``R_mm``, ``theta0_deg``, ``phi_deg`` (mean parameters, NaN before the
-filter runs), ``R_sd_mm``, ``theta0_sd_deg`` (the particles' spread), ``shape_v_mm``,
-``shape_u_mm`` (the predicted whole needle in the (u, v) plane, v from the origin's depth to
-``final_depth_mm``), ``origin_xz_mm`` and ``u_axis_xz`` (the (u, v) plane's origin and u axis
-in this frame's probe (x, z)), ``origin_depth_mm``, ``rotation_depth_mm``, ``pf_updates``,
-``score`` (the smoothed feature's robust score at the centre), ``roi_source``, ``outlier``,
-``image_ms`` and ``filter_ms`` (Carriere's Table II split).
+|d2 NCC / dpx^2| per axis, at least 1/12 px^2); ``details`` an :class:`AxialDetails`: the
+slice's depth, match and timings (Carriere's Table II split), and the bicycle model after
+the slice's update (:class:`AxialModel`; ``predicted_u_mm`` is the model's prediction for
+the slice before that update, the ROI's centre).
 """
 
 from __future__ import annotations
@@ -107,6 +101,7 @@ from ..backends import (
 )
 from ..features._base import FeatureSource, Frame
 from ._base import NeedleEstimate, Status, Tracker
+from ._details import AxialDetails, AxialModel
 
 __all__ = ["AxialParams", "AxialTracker", "map_fit_bicycle"]
 
@@ -480,38 +475,36 @@ class AxialTracker(Tracker):
         # the model's prediction for this slice, before its own update
         pred_u = float(self._predict_u([depth])[0]) if self._model_ready() else np.nan
         pred_xz = (tr.origin_xz + pred_u * self._u_axis_f0()) if np.isfinite(pred_u) else None
-        extras: dict = {"depth_mm": depth, "ncc_peak": np.nan, "predicted_u_mm": pred_u,
-                        "outlier": False, "roi_source": None, "score": np.nan}
+        ncc_peak, score, roi_source, outlier, reason = np.nan, np.nan, None, False, None
         status, center, cov = self.status, None, None
         accepted = detected = False
         feed = True
         if status == Status.TRACKING and tr.template is not None:
             prev_rc = from_f0_rc(tr.last_xz_f0)
-            roi_rc, extras["roi_source"] = prev_rc, "previous"  # the first 10 mm
+            roi_rc, roi_source = prev_rc, "previous"  # the first 10 mm
             if pred_xz is not None and depth - tr.origin_depth >= p.warmup_depth_mm:
                 pred_rc = from_f0_rc(pred_xz)
                 if np.linalg.norm((pred_rc - prev_rc) * spacing) <= p.max_jump_mm:
-                    roi_rc, extras["roi_source"] = pred_rc, "model"
+                    roi_rc, roi_source = pred_rc, "model"
             m = None
             try:
                 m = match_template_roi(M, tr.template, roi_rc, size)  # section II: NCC in ROI
                 if p.drift_correction:
                     m = self._correct_drift(M, m, size, spacing)
             except ValueError as exc:  # ROI off the image, or a constant template
-                extras["reason"] = str(exc)
+                reason = str(exc)
             if m is not None:
-                extras["ncc_peak"] = m.peak
+                ncc_peak = m.peak
                 score = (_bilinear(S, m.center) - s_med) / s_scale
-                extras["score"] = score
                 jump = float(np.linalg.norm(to_f0_xz(m.center) - tr.last_xz_f0))
                 allowed = p.max_jump_mm + p.max_slope * abs(eps - tr.last_eps)
                 if score < p.lost_score or _bilinear(S, m.center) < self._min_peak():
                     status = Status.LOST  # the cross-section vanished
-                    extras["reason"] = f"no cross-section at the match (score {score:.1f})"
+                    reason = f"no cross-section at the match (score {score:.1f})"
                 elif m.peak < p.ncc_min:
-                    extras["reason"] = f"NCC peak {m.peak:.2f} < {p.ncc_min}"
+                    reason = f"NCC peak {m.peak:.2f} < {p.ncc_min}"
                 elif jump > allowed:
-                    extras["reason"] = f"jump {jump:.2f} mm > {allowed:.2f} mm"
+                    reason = f"jump {jump:.2f} mm > {allowed:.2f} mm"
                 else:
                     center, accepted = m.center, True
                     cov = _peak_covariance(m.score, spacing)
@@ -519,7 +512,7 @@ class AxialTracker(Tracker):
                             and p.learned_template == "map"):
                         center = self._refine_on_map(F, center, spacing)
             if status == Status.TRACKING and not accepted:
-                extras["outlier"] = True
+                outlier = True
                 tr.misses += 1
                 if tr.misses > p.max_coast_frames:
                     status = Status.LOST
@@ -529,13 +522,12 @@ class AxialTracker(Tracker):
         if status != Status.TRACKING or tr.template is None:
             # (re-)detection: the maximum of the smoothed map replaces the user's click
             center, score = self._detect(F, S, s_med, s_scale, spacing)
-            extras["score"] = score
             if center is None:
                 status = Status.SEARCHING if status == Status.TRACKING else status
-                extras.setdefault("reason", f"no cross-section (score {score:.1f} < "
-                                            f"{p.detect_score})")
+                if reason is None:
+                    reason = f"no cross-section (score {score:.1f} < {p.detect_score})"
             else:
-                extras.pop("reason", None)
+                reason = None
                 status, accepted, detected = Status.TRACKING, True, True
                 cov = np.diag(np.full(2, (0.5 * p.needle_radius_mm) ** 2))
                 if tr.last_xz_f0 is not None:  # found again: fed only where expected
@@ -561,14 +553,16 @@ class AxialTracker(Tracker):
             tr.template = None
         t_filter = time.perf_counter()
 
-        extras.update(self._model_extras(depth, from_f0))
-        direction = extras.pop("_direction")
-        extras["image_ms"] = (t_image - t0) * 1e3
-        extras["filter_ms"] = (t_filter - t_image) * 1e3
+        model, direction = self._model(depth, from_f0)
+        details = AxialDetails(depth_mm=depth, ncc_peak=ncc_peak, predicted_u_mm=pred_u,
+                               outlier=outlier, roi_source=roi_source, score=score, model=model,
+                               image_ms=(t_image - t0) * 1e3,
+                               filter_ms=(t_filter - t_image) * 1e3)
         tip = None if center is None else grid.index_to_points(center)
         return NeedleEstimate(t=frame.t, status=status, tip_mm=tip,
                               direction=direction if tip is not None else None,
-                              covariance=cov if tip is not None else None, extras=extras)
+                              covariance=cov if tip is not None else None, reason=reason,
+                              details=details)
 
     def _detect(self, F, S, s_med, s_scale, spacing) -> tuple[np.ndarray | None, float]:
         """The maximum of the smoothed feature map, when it stands out (``detect_score``);
@@ -588,17 +582,19 @@ class AxialTracker(Tracker):
             center = center + self._wall_offset_rc(spacing)
         return center, score
 
-    def _model_extras(self, depth: float, from_f0: np.ndarray) -> dict:
-        """The model after this frame's update: parameters, whole shape and direction."""
+    def _model(self, depth: float, from_f0: np.ndarray) -> tuple[AxialModel, np.ndarray | None]:
+        """The model after this frame's update (parameters, whole shape), and the needle's
+        direction at this slice (None before the model exists)."""
         tr, p = self._track, self.params
-        out = {"R_mm": np.nan, "theta0_deg": np.nan, "phi_deg": np.nan, "R_sd_mm": np.nan,
-               "theta0_sd_deg": np.nan, "shape_v_mm": None, "shape_u_mm": None,
-               "origin_xz_mm": None, "u_axis_xz": None,
-               "origin_depth_mm": tr.origin_depth if tr.origin_xz is not None else np.nan,
-               "rotation_depth_mm": self.rotation_depth_mm,
-               "pf_updates": 0 if tr.pf is None else tr.pf.n_updates, "_direction": None}
+        origin_depth = tr.origin_depth if tr.origin_xz is not None else np.nan
+        pf_updates = 0 if tr.pf is None else tr.pf.n_updates
         if not self._model_ready():
-            return out
+            nan = np.nan
+            return AxialModel(R_mm=nan, theta0_deg=nan, phi_deg=nan, R_sd_mm=nan,
+                              theta0_sd_deg=nan, shape_v_mm=None, shape_u_mm=None,
+                              origin_xz_mm=None, u_axis_xz=None, origin_depth_mm=origin_depth,
+                              rotation_depth_mm=self.rotation_depth_mm,
+                              pf_updates=pf_updates), None
         R = from_f0[:3, :3]
         o = R @ np.array([tr.origin_xz[0], 0.0, tr.origin_xz[1]]) + from_f0[:3, 3]
         e = R @ np.array([np.cos(tr.phi), 0.0, np.sin(tr.phi)])
@@ -607,15 +603,14 @@ class AxialTracker(Tracker):
         shape_v = np.linspace(tr.origin_depth, v_end, n)
         u = self._predict_u(np.concatenate([shape_v, [depth - 0.25, depth + 0.25]]))
         axis = e[[0, 2]] / max(float(np.linalg.norm(e[[0, 2]])), 1e-12)
-        out.update({
-            "R_mm": tr.pf.radius_mm, "theta0_deg": tr.pf.theta0_deg,
-            "phi_deg": float(np.rad2deg(np.arctan2(np.sin(tr.phi), np.cos(tr.phi)))),
-            "R_sd_mm": float(tr.pf.sigma[0]), "theta0_sd_deg": float(tr.pf.sigma[1]),
-            "shape_v_mm": shape_v, "shape_u_mm": u[:-2],
-            "origin_xz_mm": o[[0, 2]], "u_axis_xz": axis,
-            "_direction": axis * (1.0 if u[-1] >= u[-2] else -1.0),  # sign of du/dv
-        })
-        return out
+        model = AxialModel(
+            R_mm=tr.pf.radius_mm, theta0_deg=tr.pf.theta0_deg,
+            phi_deg=float(np.rad2deg(np.arctan2(np.sin(tr.phi), np.cos(tr.phi)))),
+            R_sd_mm=float(tr.pf.sigma[0]), theta0_sd_deg=float(tr.pf.sigma[1]),
+            shape_v_mm=shape_v, shape_u_mm=u[:-2], origin_xz_mm=o[[0, 2]], u_axis_xz=axis,
+            origin_depth_mm=origin_depth, rotation_depth_mm=self.rotation_depth_mm,
+            pf_updates=pf_updates)
+        return model, axis * (1.0 if u[-1] >= u[-2] else -1.0)  # sign of du/dv
 
 
 def _bilinear(a: np.ndarray, rc: np.ndarray) -> float:

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
 
 from ..features._base import FeatureSource, Frame, FrameError, check_frame
+from ._details import EstimateDetails
 
 __all__ = ["Status", "NeedleEstimate", "Tracker", "RngLike", "frames_from_sequence"]
 
@@ -24,7 +25,8 @@ class Status(str, Enum):
 @dataclass
 class NeedleEstimate:
     """A tracker's output for one frame. Points are in millimetres, point order, probe frame
-    ((x, z) for 2D, (x, y, z) for 3D), like the sequence file's labels."""
+    ((x, z) for 2D, (x, y, z) for 3D), like the sequence file's labels. ``details`` holds what
+    the tracker reports beyond these fields (see :mod:`._details`)."""
 
     t: float
     status: Status
@@ -32,21 +34,34 @@ class NeedleEstimate:
     direction: np.ndarray | None = None  # unit vector from entry towards the tip
     covariance: np.ndarray | None = None  # of the tip, mm^2
     latency_ms: float = 0.0
-    extras: dict = field(default_factory=dict)  # method-specific (axis, entry, shape, ...)
+    reason: str | None = None
+    # why there is no needle on this frame (searching, lost) or why its measurement was not
+    # used; None when there is nothing to explain
+    axis_point_mm: np.ndarray | None = None
+    # a point of the needle's axis, which runs through it along ``direction``: where the
+    # visible needle starts (in-plane: its entry, or the axis at the ROI's anchor; volume: the
+    # entry of the fitted segment). None without a tip, and for the axial tracker, whose
+    # slices cross the axis at ``tip_mm``
+    details: EstimateDetails | None = None
+    # the tracker's own values (InplaneDetails, LineDetails, AxialDetails, VolumeDetails);
+    # None where it has none: a frame it could not measure (a constant image, NaN pixels),
+    # and the line tracker's frames without a needle
 
     def to_json(self) -> dict:
+        """The estimate as ``needlenet track --json`` writes a frame: the fields above (reason
+        and axis_point_mm only when set), then the details' keys."""
         def arr(v):
             return None if v is None else np.asarray(v, float).round(6).tolist()
 
         out = {"t": float(self.t), "status": self.status.value, "tip_mm": arr(self.tip_mm),
                "direction": arr(self.direction), "covariance": arr(self.covariance),
                "latency_ms": float(self.latency_ms)}
-        for k, v in self.extras.items():
-            if isinstance(v, np.ndarray):
-                v = arr(v)
-            elif isinstance(v, (np.floating, np.integer)):
-                v = v.item()
-            out[k] = v
+        if self.reason is not None:
+            out["reason"] = self.reason
+        if self.axis_point_mm is not None:
+            out["axis_point_mm"] = arr(self.axis_point_mm)
+        if self.details is not None:
+            out.update(self.details.to_json())
         return out
 
 
@@ -94,7 +109,7 @@ class Tracker(ABC):
             est = self._step(frame)
         except FrameError as exc:
             self.status = Status.LOST if self.status == Status.TRACKING else self.status
-            est = NeedleEstimate(t=frame.t, status=self.status, extras={"reason": str(exc)})
+            est = NeedleEstimate(t=frame.t, status=self.status, reason=str(exc))
         est.latency_ms = (time.perf_counter() - t0) * 1e3
         self.status = est.status
         return est

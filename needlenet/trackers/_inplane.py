@@ -50,7 +50,8 @@ the needle points across the rays plus the angle's variance times the needle len
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -79,6 +80,7 @@ from ..features._mathiassen import (
     tip_map_along_axis,
 )
 from ._base import NeedleEstimate, Status, Tracker
+from ._details import InplaneDetails
 
 __all__ = ["InplaneParams", "InplaneTracker"]
 
@@ -153,15 +155,23 @@ def _mirror_estimate(est: NeedleEstimate, grid) -> NeedleEstimate:
     def point(p):
         return None if p is None else np.array([x_sum - p[0], p[1]], float)
 
-    extras = dict(est.extras)
-    for key in ("axis_point_mm", "entry_mm"):
-        if isinstance(extras.get(key), np.ndarray) and extras[key].shape == (2,):
-            extras[key] = point(extras[key])
     cov = None if est.covariance is None else est.covariance * np.outer(flip, flip)
-    return NeedleEstimate(t=est.t, status=est.status, tip_mm=point(est.tip_mm),
-                          direction=None if est.direction is None else est.direction * flip,
-                          covariance=cov, latency_ms=est.latency_ms,
-                          extras={**extras, "mirrored": True})
+    return replace(est, tip_mm=point(est.tip_mm),
+                   direction=None if est.direction is None else est.direction * flip,
+                   covariance=cov, axis_point_mm=point(est.axis_point_mm),
+                   details=replace(est.details, mirrored=True))
+
+
+class _TipStep(NamedTuple):
+    """The tip filter's result on one frame (the last five: see :class:`InplaneDetails`)."""
+
+    along_mm: float  # the tip along the axis
+    var_px2: float | None  # its variance, paper px^2; None for OM (R_MIN is reported)
+    velocity: str | None = None
+    candidates: int | None = None
+    accepted: bool | None = None
+    velocity_mm_s: float | None = None
+    measurement_mm: float | None = None
 
 
 def _mm_to_px(mm):
@@ -377,14 +387,14 @@ class InplaneTracker(Tracker):
         p = self.params
         axis, feats, h, x_tip, contrast = found
         first = float(axis.rays_mm[0])
-        extras = {"shaft_contrast": contrast, "theta_measured_deg": axis.theta_deg}
         if contrast < p.detect_contrast or x_tip - first < p.min_length_mm or \
                 not self._learned_shaft_seen(feats, first, x_tip):
-            return NeedleEstimate(t=frame.t, status=self.status,
-                                  extras={**extras, "reason": "no needle found"})
+            details = InplaneDetails(contrast, theta_measured_deg=axis.theta_deg)
+            return NeedleEstimate(t=frame.t, status=self.status, reason="no needle found",
+                                  details=details)
         self._start_track(axis, x_tip, frame)
-        return self._estimate(frame, axis, x_tip, None, h, feats, contrast, tip_map,
-                              {"detected": True, "theta_measured_deg": axis.theta_deg})
+        return self._estimate(frame, axis, _TipStep(x_tip, None), h, feats, contrast, tip_map,
+                              axis.theta_deg, detected=True)
 
     def _start_track(self, axis: AxisEstimate, x_tip_mm: float, frame: Frame) -> None:
         self._clear_track()
@@ -444,18 +454,16 @@ class InplaneTracker(Tracker):
         self._misses = 0 if seen else self._misses + 1
         if self._misses >= p.lost_after_frames:
             self._clear_track()
-            return NeedleEstimate(t=frame.t, status=Status.LOST, extras={
-                "reason": f"no needle seen for {p.lost_after_frames} frames",
-                "shaft_contrast": contrast})
-        extras = {"theta_measured_deg": theta_measured}
-        x_tip, var_px2 = self._tip_step(self._tip_positions_mm(feats, tip_map), h, seen, frame,
-                                        extras)
-        self._tip_along_mm = x_tip
+            return NeedleEstimate(t=frame.t, status=Status.LOST,
+                                  reason=f"no needle seen for {p.lost_after_frames} frames",
+                                  details=InplaneDetails(contrast))
+        step = self._tip_step(self._tip_positions_mm(feats, tip_map), h, seen, frame)
+        self._tip_along_mm = step.along_mm
         if not seen:  # the filters predict through the frame; it reports no needle
-            return NeedleEstimate(t=frame.t, status=Status.LOST, extras={
-                "reason": "no needle seen on this frame", "shaft_contrast": contrast,
-                "coasting": True})
-        return self._estimate(frame, axis, x_tip, var_px2, h, feats, contrast, tip_map, extras)
+            return NeedleEstimate(t=frame.t, status=Status.LOST,
+                                  reason="no needle seen on this frame",
+                                  details=InplaneDetails(contrast, coasting=True))
+        return self._estimate(frame, axis, step, h, feats, contrast, tip_map, theta_measured)
 
     def _learned_shaft_seen(self, feats, x_from_mm: float, x_to_mm: float) -> bool:
         """For a learned source, whether its shaft probability along the axis reaches
@@ -465,19 +473,18 @@ class InplaneTracker(Tracker):
         sel = (feats.x_mm >= x_from_mm) & (feats.x_mm <= x_to_mm)
         return bool(sel.any()) and float(feats.line[sel].mean()) >= self.params.learned_level
 
-    def _tip_step(self, x_mm: np.ndarray, h: np.ndarray, seen: bool, frame: Frame,
-                  extras: dict):
-        """Tip along the axis (mm) and its variance (px^2, None for OM) for this frame, from
-        h(x) at tip positions ``x_mm``."""
+    def _tip_step(self, x_mm: np.ndarray, h: np.ndarray, seen: bool, frame: Frame) -> _TipStep:
+        """The tip along the axis (mm) and its variance for this frame, from h(x) at tip
+        positions ``x_mm``."""
         x_px = _mm_to_px(x_mm)
         velocity = self._velocity_px_s(frame)
-        if self.use_velocity and velocity is None:
-            extras["velocity"] = "the frame carries no insertion speed; image only"
+        note = "the frame carries no insertion speed; image only" if \
+            self.use_velocity and velocity is None else None
         if self.filter_kind is None or self._tip_filter is None:  # OM: the maximum of h(x)
             x_tip = float(x_mm[int(np.argmax(h))]) if seen else self._tip_along_mm
             if self.filter_kind is not None and seen:
                 self._two_point_start(x_tip, float(frame.t))
-            return x_tip, None
+            return _TipStep(x_tip, None, note)
         if self.filter_kind == "kf":
             if seen:
                 M = max(1, int(round(self.params.axis.candidate_radius_mm /
@@ -489,16 +496,15 @@ class InplaneTracker(Tracker):
             else:
                 idx, scores = np.zeros(0, int), np.zeros(0)
             est = self._tip_filter.step(x_px[idx], scores, velocity)  # Algorithm 4
-            extras.update(candidates=int(idx.size), measurement_accepted=bool(est.accepted),
-                          tip_velocity_mm_s=est.velocity_px_s * PAPER_PX_MM)
-            if est.accepted:
-                extras["tip_measurement_mm"] = float(est.measurement_px * PAPER_PX_MM)
-            return est.position_px * PAPER_PX_MM, float(est.P[0, 0])
+            measured = float(est.measurement_px * PAPER_PX_MM) if est.accepted else None
+            return _TipStep(est.position_px * PAPER_PX_MM, float(est.P[0, 0]), note,
+                            int(idx.size), bool(est.accepted),
+                            est.velocity_px_s * PAPER_PX_MM, measured)
         h_used = h if seen else np.zeros_like(h)  # a frame without the needle: flat h_pdf
         est = self._tip_filter.step(h_used, x_px, velocity, rng=self.rng)  # Algorithm 5
-        extras.update(measurement_accepted=bool(est.updated),
-                      tip_velocity_mm_s=est.velocity_px_s * PAPER_PX_MM)
-        return est.position_px * PAPER_PX_MM, float(est.covariance[0, 0])
+        return _TipStep(est.position_px * PAPER_PX_MM, float(est.covariance[0, 0]), note,
+                        accepted=bool(est.updated),
+                        velocity_mm_s=est.velocity_px_s * PAPER_PX_MM)
 
     def _two_point_start(self, x_tip_mm: float, t: float) -> None:
         """Start the tip filter at this measurement with the velocity of the last two."""
@@ -536,13 +542,11 @@ class InplaneTracker(Tracker):
         self._misses = 0 if found else self._misses + 1
         if not found:
             reason = res.reason or f"shaft contrast {contrast:.2f} below {need}"
-            if detecting:
-                return NeedleEstimate(t=frame.t, status=self.status,
-                                      extras={"reason": reason, "shaft_contrast": contrast})
-            if self._misses >= p.lost_after_frames:
+            status = self.status if detecting else Status.LOST
+            if not detecting and self._misses >= p.lost_after_frames:
                 self._clear_track()
-            return NeedleEstimate(t=frame.t, status=Status.LOST,
-                                  extras={"reason": reason, "shaft_contrast": contrast})
+            return NeedleEstimate(t=frame.t, status=status, reason=reason,
+                                  details=InplaneDetails(contrast))
         if detecting:
             self._clear_track()
             self._theta_ref = res.theta_deg
@@ -553,9 +557,8 @@ class InplaneTracker(Tracker):
             covariance=self._covariance(res.theta_deg, float(MathiassenTipParams().r_min_px2),
                                         1.0 / 12.0 * (grid.spacing_mm[0] ** 2),
                                         self.params.angle.r_theta_deg2, x_tip - first),
-            extras={"axis_point_mm": np.asarray(res.entry_mm, float),
-                    "theta_deg": res.theta_deg, "hough_votes": res.votes,
-                    "shaft_contrast": contrast})
+            axis_point_mm=np.asarray(res.entry_mm, float),
+            details=InplaneDetails(contrast, theta_deg=res.theta_deg, hough_votes=res.votes))
         return est
 
     # output -----------------------------------------------------------------------------
@@ -569,9 +572,10 @@ class InplaneTracker(Tracker):
         var_p = var_p_mm2 + np.deg2rad(np.sqrt(var_theta_deg2)) ** 2 * max(length_mm, 0.0) ** 2
         return var_n * np.outer(vn, vn) + var_p * np.outer(vp, vp)
 
-    def _estimate(self, frame, axis: AxisEstimate, x_tip: float, var_px2: float | None, h,
-                  feats, contrast: float, tip_map, extras: dict) -> NeedleEstimate:
+    def _estimate(self, frame, axis: AxisEstimate, step: _TipStep, h, feats, contrast: float,
+                  tip_map, theta_measured_deg: float, detected: bool = False) -> NeedleEstimate:
         offset = self._offset_mm(tip_map)
+        x_tip, var_px2 = step.along_mm, step.var_px2
         tip = axis.point_mm(x_tip, offset)
         if var_px2 is None:
             var_px2 = float(MathiassenTipParams().r_min_px2)  # OM: R_MIN
@@ -585,9 +589,11 @@ class InplaneTracker(Tracker):
         at_end = x_tip >= float(feats.x_mm[-1]) - self.params.axis.region_length_mm
         return NeedleEstimate(
             t=frame.t, status=Status.TRACKING, tip_mm=tip, direction=axis.direction,
-            covariance=cov,
-            extras={"axis_point_mm": axis.point_mm(0.0, offset), "theta_deg": axis.theta_deg,
-                    "p_p_mm": axis.p_p_mm + offset, "tip_along_mm": x_tip,
-                    "h_peak": float(np.max(h)), "h_max": axis.h_max,
-                    "n_rays": int(len(axis.rays_mm)), "shaft_contrast": contrast,
-                    "tip_at_image_edge": bool(at_end), **extras})
+            covariance=cov, axis_point_mm=axis.point_mm(0.0, offset),
+            details=InplaneDetails(
+                contrast, theta_measured_deg=theta_measured_deg, theta_deg=axis.theta_deg,
+                p_p_mm=axis.p_p_mm + offset, tip_along_mm=x_tip, h_peak=float(np.max(h)),
+                h_max=axis.h_max, n_rays=int(len(axis.rays_mm)),
+                tip_at_image_edge=bool(at_end), detected=detected, velocity=step.velocity,
+                candidates=step.candidates, measurement_accepted=step.accepted,
+                tip_velocity_mm_s=step.velocity_mm_s, tip_measurement_mm=step.measurement_mm))

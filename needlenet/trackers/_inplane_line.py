@@ -53,6 +53,7 @@ from ..backends import (
 )
 from ..features import FeatureSource, Frame, line_contrast
 from ._base import NeedleEstimate, Status, Tracker
+from ._details import LineDetails
 
 __all__ = ["LineTrackerParams", "LineTracker"]
 
@@ -340,11 +341,10 @@ class LineTracker(Tracker):
             self._forget()  # another line than the one tracked: start anew
         seg = self._orient(seg, frame, inner)
         tip_mm, used_tip_map = self._tip(seg, lik.tip, frame)
-        extras = {"shaft_support": seg.support, "segment_length_mm": seg.length_mm,
-                  "tip_measurement_mm": tip_mm.copy(), "tip_from_tip_map": used_tip_map}
         self._misses = 0
-        self._filter(tip_mm, extras)
-        return self._estimate(frame, seg, extras)
+        measured = tip_mm.copy()
+        accepted, restarted = self._filter(tip_mm)
+        return self._estimate(frame, seg, measured, used_tip_map, accepted, restarted)
 
     def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Constant velocity in (x, z) with white acceleration noise (F, Q)."""
@@ -424,7 +424,7 @@ class LineTracker(Tracker):
         else:
             reason = f"no needle: {seg.reason}"
         status = Status.LOST if had or self.status == Status.TRACKING else Status.SEARCHING
-        return NeedleEstimate(t=frame.t, status=status, extras={"reason": reason})
+        return NeedleEstimate(t=frame.t, status=status, reason=reason)
 
     # ------------------------------------------------------------------ geometry
 
@@ -455,27 +455,28 @@ class LineTracker(Tracker):
                 used = True
         return end + self._offset_mm() * normal, used
 
-    def _filter(self, z: np.ndarray, extras: dict) -> None:
+    def _filter(self, z: np.ndarray) -> tuple[bool | None, bool]:
+        """Update the filter with tip measurement ``z``: whether the gate accepted it (None
+        when the filter starts at it) and whether the filter restarted at it."""
         p = self.params
         H = np.hstack([np.eye(2), np.zeros((2, 2))])
         R = np.eye(2) * p.measurement_std_mm ** 2
         if self._x is None:
             self._start(z)
-            return
+            return None, False
         y = z - H @ self._x
         S = H @ self._P @ H.T + R
         d = float(np.sqrt(y @ np.linalg.solve(S, y)))
         if d > chi2_gate(2, p.gate_probability):
             self._rejects += 1
-            extras["measurement_accepted"] = False
             if self._rejects >= p.reinit_after_rejects:
                 self._start(z)
-                extras["restarted"] = True
-            return
+                return False, True
+            return False, False
         self._rejects = 0
         res = update(self._x, self._P, z, R, H)
         self._x, self._P = res.x, res.P
-        extras["measurement_accepted"] = True
+        return True, False
 
     def _start(self, z: np.ndarray) -> None:
         p = self.params
@@ -483,7 +484,8 @@ class LineTracker(Tracker):
         self._P = np.diag([p.measurement_std_mm ** 2] * 2 + [p.initial_speed_std_mm_s ** 2] * 2)
         self._rejects = 0
 
-    def _estimate(self, frame: Frame, seg: NeedleLine, extras: dict) -> NeedleEstimate:
+    def _estimate(self, frame: Frame, seg: NeedleLine, measured_mm: np.ndarray,
+                  used_tip_map: bool, accepted: bool | None, restarted: bool) -> NeedleEstimate:
         self._dir = seg.direction.copy()
         self._line_point = 0.5 * (seg.start_mm + seg.end_mm)
         normal = np.array([-seg.direction[1], seg.direction[0]])
@@ -493,11 +495,14 @@ class LineTracker(Tracker):
         tip = self._x[:2].copy()
         return NeedleEstimate(
             t=frame.t, status=Status.TRACKING, tip_mm=tip, direction=seg.direction.copy(),
-            covariance=self._P[:2, :2].copy(),
-            extras={"axis_point_mm": entry, "entry_mm": entry,
-                    "theta_deg": float(np.degrees(np.arctan2(seg.direction[1],
-                                                             abs(seg.direction[0])))),
-                    "tip_velocity_mm_s": self._x[2:].copy(), **extras})
+            covariance=self._P[:2, :2].copy(), axis_point_mm=entry,
+            details=LineDetails(
+                entry_mm=entry,
+                theta_deg=float(np.degrees(np.arctan2(seg.direction[1], abs(seg.direction[0])))),
+                tip_velocity_mm_s=self._x[2:].copy(), shaft_support=seg.support,
+                segment_length_mm=seg.length_mm, tip_measurement_mm=measured_mm,
+                tip_from_tip_map=used_tip_map, measurement_accepted=accepted,
+                restarted=restarted))
 
 
 def _on_line(seg: NeedleLine, point: np.ndarray, direction: np.ndarray, window_deg: float,

@@ -2,13 +2,14 @@
 cross-section tracking error and Table II timing, on hand-computed cases."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 import synth
 from needlenet.eval._axial_metrics import axial_errors, axial_metrics, eq8_shape_error
-from needlenet.trackers._base import NeedleEstimate, Status
+from needlenet.trackers import AxialDetails, AxialModel, NeedleEstimate, Status
 
 
 def test_eq8_hand_computed():
@@ -22,6 +23,18 @@ def test_eq8_hand_computed():
     u = np.array([0.0, 1.0, np.nan, 3.0])
     assert eq8_shape_error(v, u, np.zeros(4)) == pytest.approx(0.5 + 2.0 * 2.0)
     assert np.isnan(eq8_shape_error([1.0], [1.0], [0.0]))
+
+
+def _details(depth_mm, image_ms=1.0, filter_ms=0.5, **model) -> AxialDetails:
+    """An axial tracker's details at ``depth_mm``: no model unless ``model`` gives its
+    fields."""
+    nan = np.nan
+    fields = dict(R_mm=nan, theta0_deg=nan, phi_deg=nan, R_sd_mm=nan, theta0_sd_deg=nan,
+                  shape_v_mm=None, shape_u_mm=None, origin_xz_mm=None, u_axis_xz=None,
+                  origin_depth_mm=nan, rotation_depth_mm=5.0, pf_updates=0)
+    return AxialDetails(depth_mm=depth_mm, ncc_peak=nan, predicted_u_mm=nan, outlier=False,
+                        roi_source=None, score=nan, model=AxialModel(**{**fields, **model}),
+                        image_ms=image_ms, filter_ms=filter_ms)
 
 
 def _sequence(T=11, step=1.0, offset=(0.3, 0.4)):
@@ -41,15 +54,14 @@ def _sequence(T=11, step=1.0, offset=(0.3, 0.4)):
     shape_v = np.linspace(0.0, 20.0, 21)
     estimates = []
     for k in range(T):
-        extras = {"depth_mm": v[k], "image_ms": 1.0 + k % 2, "filter_ms": 0.5,
-                  "rotation_depth_mm": 5.0, "shape_u_mm": None}
+        model = {}
         if k >= 2:  # the model exists from frame 2; it predicts u = 0 everywhere
-            extras.update({"shape_v_mm": shape_v, "shape_u_mm": np.zeros_like(shape_v),
-                           "origin_xz_mm": truth[0] + offset, "u_axis_xz": np.array([1.0, 0]),
-                           "origin_depth_mm": 0.0})
+            model = dict(shape_v_mm=shape_v, shape_u_mm=np.zeros_like(shape_v),
+                         origin_xz_mm=truth[0] + offset, u_axis_xz=np.array([1.0, 0]),
+                         origin_depth_mm=0.0)
         estimates.append(NeedleEstimate(t=k / 20.0, status=Status.TRACKING,
                                         tip_mm=truth[k] + offset, latency_ms=2.0 + k % 2,
-                                        extras=extras))
+                                        details=_details(v[k], 1.0 + k % 2, **model)))
     return seq, estimates
 
 
@@ -93,7 +105,7 @@ def test_evaluate_dispatches_axial_with_latency():
 
 def test_prediction_depth_and_untracked_frames():
     seq, est = _sequence()
-    est[3] = NeedleEstimate(t=0.15, status=Status.LOST, extras={"depth_mm": 3.0})
+    est[3] = NeedleEstimate(t=0.15, status=Status.LOST, details=_details(3.0))
     seq.visible[7] = False
     m = axial_errors(est, seq, prediction_depth_mm=3.5)
     assert m.prediction_frame == 2  # frame 3 was lost: the last model at or before 3.5 mm
@@ -109,7 +121,7 @@ def test_prediction_depth_and_untracked_frames():
 def test_no_model_gives_nan_and_length_is_checked():
     seq, est = _sequence()
     for e in est:
-        e.extras["shape_u_mm"] = None
+        e.details = replace(e.details, model=replace(e.details.model, shape_u_mm=None))
     m = axial_errors(est, seq)
     assert m.prediction_frame == -1
     assert np.isnan(m.tip_error_mm) and np.isnan(m.shape_error_mm2)

@@ -11,7 +11,7 @@ from needlenet.eval._volume_metrics import (
     distance_to_line,
     evaluate_volume,
 )
-from needlenet.trackers._base import NeedleEstimate, Status
+from needlenet.trackers import NeedleEstimate, Status, VolumeDetails
 from synth import Sequence
 
 ENTRY = np.array([0.0, 0.0, 30.0])
@@ -29,16 +29,15 @@ def _sequence(n, visible=None):
 
 
 def _estimate(tip, direction=DIRECTION, point=None, latency_ms=100.0, trials=20):
-    extras = {"ransac_trials": trials}
-    if point is not None:
-        extras["axis_point_mm"] = np.asarray(point, float)
     return NeedleEstimate(t=0.0, status=Status.TRACKING, tip_mm=np.asarray(tip, float),
                           direction=np.asarray(direction, float), covariance=np.eye(3),
-                          latency_ms=latency_ms, extras=extras)
+                          latency_ms=latency_ms,
+                          axis_point_mm=None if point is None else np.asarray(point, float),
+                          details=VolumeDetails(inliers=0, ransac_trials=trials, roi_voxels=0))
 
 
 def _missing(status=Status.LOST, latency_ms=100.0):
-    return NeedleEstimate(t=0.0, status=status, latency_ms=latency_ms, extras={})
+    return NeedleEstimate(t=0.0, status=status, latency_ms=latency_ms)
 
 
 def test_eps_axis_is_the_larger_end_point_distance():

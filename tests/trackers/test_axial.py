@@ -59,7 +59,7 @@ def test_tracks_the_cross_section_and_predicts_the_tip(curved, prior_like, updat
         assert np.nanmax(m.tracking_error_mm) < 1.0  # measured 0.28 mm
         # the prediction of the needle at 60 mm made from the slices up to D = 40 mm;
         # Carriere 2016 report 0.125-0.5 mm (Table I) for D = 80 and 60 mm
-        assert est[m.prediction_frame].extras["depth_mm"] == pytest.approx(D, abs=0.5)
+        assert est[m.prediction_frame].details.depth_mm == pytest.approx(D, abs=0.5)
         assert m.tip_error_mm < 1.0  # measured 0.03-0.46 mm
         assert m.shape_error_mm2 < 15.0  # measured 0.9-9.7 mm^2
 
@@ -71,41 +71,47 @@ def test_lsq_option_learns_the_radius_the_paper_filter_misses(curved):
     for update in ("paper", "lsq"):
         est = AxialTracker(params=_params(filter_update=update), rng=0).run(curved)
         m = axial_errors(est, curved)
-        out[update] = (est[m.prediction_frame].extras["R_mm"], m.tip_error_mm)
+        out[update] = (est[m.prediction_frame].details.model.R_mm, m.tip_error_mm)
     assert out["paper"][0] > 1200.0  # measured 1403
     assert abs(out["lsq"][0] - 800.0) < 150.0  # measured 861
     assert out["lsq"][1] < 0.5 * out["paper"][1]  # measured 0.04 against 0.46 mm
 
 
-def test_estimate_contract_and_model_extras(prior_like):
+def test_estimate_contract_and_model_details(prior_like):
     seq = prior_like
     est = AxialTracker(params=_params(), rng=0).run(seq)
-    keys = {"depth_mm", "ncc_peak", "predicted_u_mm", "R_mm", "theta0_deg", "phi_deg",
-            "shape_v_mm", "shape_u_mm", "origin_xz_mm", "u_axis_xz", "image_ms", "filter_ms"}
-    updates = [e.extras["pf_updates"] for e in est]
+    # the keys of ``needlenet track --json``: every field of the details, on every frame
+    keys = {"depth_mm", "ncc_peak", "predicted_u_mm", "outlier", "roi_source", "score",
+            "R_mm", "theta0_deg", "phi_deg", "R_sd_mm", "theta0_sd_deg", "shape_v_mm",
+            "shape_u_mm", "origin_xz_mm", "u_axis_xz", "origin_depth_mm", "rotation_depth_mm",
+            "pf_updates", "image_ms", "filter_ms"}
+    updates = [e.details.model.pf_updates for e in est]
     for k, e in enumerate(est):
-        assert keys <= e.extras.keys()
-        json.dumps(e.to_json())
+        out = e.to_json()
+        json.dumps(out)
+        assert set(out) == keys | {"t", "status", "tip_mm", "direction", "covariance",
+                                   "latency_ms"}
         assert e.status == Status.TRACKING and e.tip_mm.shape == (2,)
-        assert e.extras["depth_mm"] == pytest.approx(seq.probe_pose[k, 1, 3])
+        assert e.details.depth_mm == pytest.approx(seq.probe_pose[k, 1, 3])
         np.testing.assert_allclose(e.covariance, e.covariance.T)
         assert np.all(np.linalg.eigvalsh(e.covariance) > 0)
-        if e.extras["depth_mm"] - est[0].extras["depth_mm"] < 10.0:  # warm-up: no model
-            assert e.extras["shape_u_mm"] is None and e.direction is None
+        model = e.details.model
+        if e.details.depth_mm - est[0].details.depth_mm < 10.0:  # warm-up: no model
+            assert model.shape_u_mm is None and e.direction is None
             assert updates[k] == 0
             continue
-        assert e.extras["shape_u_mm"].shape == e.extras["shape_v_mm"].shape
-        assert e.extras["shape_v_mm"][-1] == pytest.approx(60.0)
+        assert model.shape_u_mm.shape == model.shape_v_mm.shape
+        assert model.shape_v_mm[-1] == pytest.approx(60.0)
         assert np.linalg.norm(e.direction) == pytest.approx(1.0)
-        if e.extras["depth_mm"] >= 20.0:  # once the deflection shows (PCA of phi)
+        if e.details.depth_mm >= 20.0:  # once the deflection shows (PCA of phi)
             assert e.direction @ seq.direction[k] > 0.9  # the label: the tangent's (x, z)
     # one particle-filter update per frame from 10 mm to D, none after (step 10)
-    depth = np.array([e.extras["depth_mm"] for e in est])
+    depth = np.array([e.details.depth_mm for e in est])
     assert updates[-1] == updates[int(np.flatnonzero(depth <= D)[-1])]
     assert np.all(np.diff(updates)[(depth[1:] > 10.5) & (depth[1:] <= D)] == 1)
     # the predicted needle turns at D: its curvature changes sign there
-    e = est[-1].extras
-    u = np.interp(np.arange(2.0, 60.0, 2.0), e["shape_v_mm"], e["shape_u_mm"])
+    model = est[-1].details.model
+    u = np.interp(np.arange(2.0, 60.0, 2.0), model.shape_v_mm, model.shape_u_mm)
     curvature = np.diff(u, 2)
     v_mid = np.arange(4.0, 58.0, 2.0)
     assert np.all(curvature[v_mid < D - 2] > 0) and np.all(curvature[v_mid > D + 2] < 0)
@@ -134,7 +140,7 @@ def test_needle_free_frames_are_never_detected():
     seq = _axial(4, frames=12, plane_lag_mm=-3.0)
     est = AxialTracker(params=_params(), rng=0).run(seq)
     assert all(e.status == Status.SEARCHING and e.tip_mm is None for e in est)
-    assert all(e.extras["score"] < AxialParams().detect_score for e in est)
+    assert all(e.details.score < AxialParams().detect_score for e in est)
 
 
 def test_constant_and_nan_frames_give_lost_or_searching():
@@ -150,7 +156,7 @@ def test_constant_and_nan_frames_give_lost_or_searching():
         assert tracker.update(f).status == Status.TRACKING
     for bad in (nan, blank):
         e = tracker.update(bad)
-        assert e.status == Status.LOST and e.tip_mm is None and "reason" in e.extras
+        assert e.status == Status.LOST and e.tip_mm is None and e.reason
     e = tracker.update(frames[6])
     assert e.status == Status.TRACKING
     assert np.linalg.norm(e.tip_mm - seq.tip_mm[6]) < 0.5
@@ -162,7 +168,7 @@ def test_depth_falls_back_to_half_millimetre_steps():
     for k, f in enumerate(frames_from_sequence(seq)):
         f.probe_pose = None
         e = tracker.update(f)
-        assert e.extras["depth_mm"] == pytest.approx(0.5 * (k + 1))
+        assert e.details.depth_mm == pytest.approx(0.5 * (k + 1))
         assert np.linalg.norm(e.tip_mm - seq.tip_mm[k]) < 0.5
 
 
@@ -209,7 +215,7 @@ def test_servo_scenario_is_tracked():
     m = axial_errors(est, seq)
     assert m.detection_rate == 1.0
     assert np.nanmedian(m.tracking_error_mm) < 1.0
-    depth = np.array([e.extras["depth_mm"] for e in est])
+    depth = np.array([e.details.depth_mm for e in est])
     assert np.all(np.diff(depth[1:]) > 0)  # depths grow along the insertion (elevation -X)
 
 
@@ -219,10 +225,10 @@ def test_run_takes_the_planned_rotation_depth(prior_like):
     tracker = AxialTracker(seed=0)  # the command line's keyword
     est = tracker.run(prior_like)
     assert tracker.rotation_depth_mm is None
-    assert est[-1].extras["rotation_depth_mm"] == D
+    assert est[-1].details.model.rotation_depth_mm == D
     explicit = AxialTracker(params=_params(), rng=0).run(prior_like)
-    assert est[-1].extras["R_mm"] == explicit[-1].extras["R_mm"]
-    assert est[-1].extras["pf_updates"] == explicit[-1].extras["pf_updates"]
+    assert est[-1].details.model.R_mm == explicit[-1].details.model.R_mm
+    assert est[-1].details.model.pf_updates == explicit[-1].details.model.pf_updates
 
 
 def test_same_seed_same_estimates(prior_like):
@@ -230,7 +236,8 @@ def test_same_seed_same_estimates(prior_like):
     b = AxialTracker(params=_params(), rng=3).run(prior_like)
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x.tip_mm, y.tip_mm)
-        assert x.extras["R_mm"] == y.extras["R_mm"] or np.isnan(x.extras["R_mm"])
+        R = x.details.model.R_mm
+        assert R == y.details.model.R_mm or np.isnan(R)
 
 
 def test_map_fit_recovers_the_bicycle_path():

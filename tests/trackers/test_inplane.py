@@ -43,7 +43,7 @@ def test_every_method_tracks_with_a_consistent_estimate(sequences, method):
             assert e.covariance.shape == (2, 2)
             np.testing.assert_allclose(e.covariance, e.covariance.T, atol=1e-12)
             assert np.all(np.linalg.eigvalsh(e.covariance) > 0)
-            assert {"axis_point_mm", "theta_deg"} <= e.extras.keys()
+            assert e.axis_point_mm.shape == (2,) and e.details.theta_deg is not None
         theta = np.degrees(np.arctan2(estimates[-1].direction[1], -estimates[-1].direction[0]))
         # DF, the Hough baseline, is the least precise (Mathiassen Table III: -2.7 +- 3.6 deg)
         assert theta == pytest.approx(angle, abs=2.5 if method == "df" else 1.0)
@@ -68,7 +68,7 @@ def test_feedback_velocity_filter_reaches_the_paper_precision(sequences):
 def test_robot_velocity_is_used_in_px_per_second(sequences):
     estimates = InplaneTracker("kfv", expected_angle_deg=35.0).run(sequences[35])
     # 10 mm/s measured with R_v = (1 px/frame)^2: the filter's velocity follows it
-    assert estimates[-1].extras["tip_velocity_mm_s"] == pytest.approx(10.0, abs=0.3)
+    assert estimates[-1].details.tip_velocity_mm_s == pytest.approx(10.0, abs=0.3)
 
 
 def test_expected_angle_can_be_found_by_the_tracker(sequences):
@@ -76,7 +76,7 @@ def test_expected_angle_can_be_found_by_the_tracker(sequences):
     estimates = InplaneTracker("kf+f").run(seq)  # detection over 20-70 degrees
     err = _errors(estimates, seq)
     assert np.isfinite(err[-5:]).all() and np.median(err[np.isfinite(err)]) < 1.0
-    assert estimates[-1].extras["theta_deg"] == pytest.approx(45.0, abs=1.0)
+    assert estimates[-1].details.theta_deg == pytest.approx(45.0, abs=1.0)
 
 
 def test_particle_filters_are_reproducible(sequences):
@@ -129,9 +129,9 @@ def test_constant_and_nan_frames_never_raise(sequences):
         assert tracker.update(Frame(seq.images[i], grid, t=0.1 + 0.05 * i)).status == \
             Status.TRACKING
     est = tracker.update(Frame(np.full(grid.shape, 7, np.uint8), grid, t=0.4))
-    assert est.status == Status.LOST and "constant" in est.extras["reason"]
+    assert est.status == Status.LOST and "constant" in est.reason
     est = tracker.update(Frame(nan, grid, t=0.45))
-    assert est.status == Status.LOST and "NaN" in est.extras["reason"]
+    assert est.status == Status.LOST and "NaN" in est.reason
     assert tracker.update(Frame(seq.images[6], grid, t=0.5)).status == Status.TRACKING
 
 
@@ -162,8 +162,8 @@ def test_a_tip_map_replaces_the_five_features(sequences):
     estimates = InplaneTracker("om", _TipMapSource(seq), expected_angle_deg=45.0,
                                weights="/nonexistent.json",
                                params=InplaneParams(learned_level=0.0)).run(seq)
-    along = [e.extras["tip_along_mm"] for e in estimates]
-    truth = [(t - e.extras["axis_point_mm"]) @ e.direction for e, t in
+    along = [e.details.tip_along_mm for e in estimates]
+    truth = [(t - e.axis_point_mm) @ e.direction for e, t in
              zip(estimates, seq.tip_mm, strict=True)]
     np.testing.assert_allclose(along, truth, atol=0.6)  # the map's peak, not the features'
 
@@ -207,7 +207,7 @@ def test_a_needle_from_the_left_is_tracked_on_mirrored_frames(sequences, method)
     # mirroring is exact: the same estimates, mirrored back into the frame's coordinates
     np.testing.assert_allclose(err_l, err_r, atol=1e-6)
     last = left_est[-1]
-    assert last.extras["mirrored"] and last.direction[0] > 0  # from the left, going right
+    assert last.details.mirrored and last.direction[0] > 0  # from the left, going right
     with pytest.raises(ValueError, match="entry_side"):
         InplaneParams(entry_side="top")
     fixed = InplaneTracker(method, expected_angle_deg=35, rng=0,

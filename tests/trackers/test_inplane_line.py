@@ -86,7 +86,7 @@ def test_needle_free_sequence_is_never_tracking(kind, background):
                          **SCENE)
     est = _tracker(kind).run(seq)
     assert all(e.status != Status.TRACKING and e.tip_mm is None for e in est)
-    assert all("no needle" in e.extras["reason"] for e in est)
+    assert all("no needle" in e.reason for e in est)
 
 
 def test_needle_that_vanishes_is_lost_then_found_again():
@@ -194,9 +194,9 @@ def test_a_line_from_edge_to_edge_shows_no_tip(sector):
         shaft[image == 0] = 0.0
         tr = LineTracker(features=_MapSource(shaft))
         est = tr.update(Frame(image=image, grid=g, t=0.0))
-        assert (est.status == Status.TRACKING) == needle, est.extras.get("reason")
+        assert (est.status == Status.TRACKING) == needle, est.reason
         if not needle:
-            assert "edge to edge" in est.extras["reason"]
+            assert "edge to edge" in est.reason
 
 
 def _line_map(h, w, p0, p1, width=1):
@@ -222,9 +222,9 @@ def test_where_a_line_ends_decides_whether_it_is_a_needle(p0, p1, tracked, reaso
     g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
     tr = LineTracker(features=_MapSource(_line_map(h, w, p0, p1, width=3)))
     est = tr.update(Frame(image=image, grid=g, t=0.0))
-    assert (est.status == Status.TRACKING) == tracked, est.extras.get("reason")
+    assert (est.status == Status.TRACKING) == tracked, est.reason
     if reason:
-        assert reason in est.extras["reason"]
+        assert reason in est.reason
 
 
 def test_a_black_vessel_inside_the_image_is_no_edge_of_the_view():
@@ -239,11 +239,11 @@ def test_a_black_vessel_inside_the_image_is_no_edge_of_the_view():
     g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
     shaft = _line_map(h, w, (62, 140), (150, 60), width=3)  # starts 4 px below the vessel
     est = LineTracker(features=_MapSource(shaft)).update(Frame(image=image, grid=g, t=0.0))
-    assert est.status != Status.TRACKING and "floats in the tissue" in est.extras["reason"]
+    assert est.status != Status.TRACKING and "floats in the tissue" in est.reason
     image[:, 185:] = 0  # a capture margin on the right; the line now starts at its edge
     shaft = _line_map(h, w, (30, 184), (120, 94), width=3)
     est = LineTracker(features=_MapSource(shaft)).update(Frame(image=image, grid=g, t=0.0))
-    assert est.status == Status.TRACKING, est.extras.get("reason")
+    assert est.status == Status.TRACKING, est.reason
 
 
 @pytest.mark.parametrize("name, value", [("edge_margin_mm", 2147483648.0),

@@ -80,17 +80,16 @@ def test_estimates_carry_the_interface(seq_b):
     assert est.covariance.shape == (3, 3)
     np.testing.assert_allclose(est.covariance, est.covariance.T)
     assert np.all(np.linalg.eigvalsh(est.covariance) > 0)
-    for key in ("axis_point_mm", "alpha_deg", "beta_deg", "inliers", "ransac_trials",
-                "roi_voxels"):
-        assert key in est.extras
+    assert {"axis_point_mm", "alpha_deg", "beta_deg", "inliers", "ransac_trials", "roi_voxels",
+            "measured_tip_mm"} <= est.to_json().keys()
     # Zhao's beta = 73 deg, alpha = 90 deg (eq. (4))
-    assert est.extras["beta_deg"] == pytest.approx(73.0, abs=3.0)
-    assert est.extras["alpha_deg"] == pytest.approx(90.0, abs=3.0)
+    assert est.details.beta_deg == pytest.approx(73.0, abs=3.0)
+    assert est.details.alpha_deg == pytest.approx(90.0, abs=3.0)
     # the ROI of radius 2.5 mm holds far fewer voxels than the volume, and RANSAC stops early
-    assert 0 < est.extras["roi_voxels"] < 0.05 * SIZE**3
-    assert est.extras["ransac_trials"] <= VolumeTrackerParams().max_trials
+    assert 0 < est.details.roi_voxels < 0.05 * SIZE**3
+    assert est.details.ransac_trials <= VolumeTrackerParams().max_trials
     # the axis point lies on the reported axis, behind the tip
-    w = est.tip_mm - est.extras["axis_point_mm"]
+    w = est.tip_mm - est.axis_point_mm
     assert np.linalg.norm(np.cross(w, est.direction)) < 1e-9 and w @ est.direction > 3.0
 
 
@@ -107,7 +106,7 @@ def test_ransac_at_zhaos_cap_of_50_trials_misses_a_short_needle(seq_a):
     estimates = VolumeTracker("ransac", rng=0).run(seq_a)
     ev = evaluate_volume(estimates, seq_a)
     assert ev.summary["failure_rate"] >= 0.5
-    assert all(e.extras["ransac_trials"] == 50 for e in estimates)
+    assert all(e.details.ransac_trials == 50 for e in estimates)
     # with the trials eq. (B8) asks for, the same volumes are found
     params = VolumeTrackerParams(max_trials=3000, batch_size=64)
     tracker = VolumeTracker("ransac", params=params, rng=0)
@@ -137,7 +136,7 @@ def test_lost_when_the_needle_is_withdrawn_and_found_again(method, seq_a, needle
     status = [e.status for e in estimates]
     assert status[3] == Status.TRACKING
     assert status[4] == Status.LOST and status[5] == Status.LOST  # no needle: lost, no tip
-    assert estimates[4].tip_mm is None and "reason" in estimates[4].extras
+    assert estimates[4].tip_mm is None and estimates[4].reason
     assert status[6] == Status.TRACKING and status[7] == Status.TRACKING  # found again
     for i in (3, 6, 7):
         assert np.linalg.norm(estimates[i].tip_mm - truth[i]) < 1.0
@@ -177,7 +176,7 @@ def test_constant_nan_and_empty_volumes_never_raise(method, seq_b):
     assert est.status == Status.TRACKING
     for k, image in enumerate(bad[:2]):
         est = tracker.update(Frame(image=image, grid=grid, t=20.0 + k, index=20 + k))
-        assert est.status == Status.LOST and est.tip_mm is None and "reason" in est.extras
+        assert est.status == Status.LOST and est.tip_mm is None and est.reason
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -265,7 +264,7 @@ def test_chatelain_starts_only_on_a_needle_the_map_believes_in(floor, starts):
     est = _chatelain_after_appearing(12.0, 0.2, start_min_likelihood=floor)
     assert (est.status == Status.TRACKING) == starts
     if not starts:
-        assert "median likelihood" in est.extras["reason"]
+        assert "median likelihood" in est.reason
 
 
 @pytest.mark.parametrize("margin, starts", [(1.5, False), (0.0, True)])
@@ -277,7 +276,7 @@ def test_chatelain_waits_while_the_needle_runs_out_of_the_volume(margin, starts)
     if starts:  # the tip it would track lies on a face (both ends of what it sees do)
         assert min(abs(est.tip_mm[0] + 9.0), abs(est.tip_mm[0] - 10.6)) < 1.0
     else:
-        assert "runs out of the volume" in est.extras["reason"]
+        assert "runs out of the volume" in est.reason
 
 
 # --------------------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ import numpy as np
 from ...backends import direction_to_angles, predict, update
 from ...features._base import FeatureSource, Frame
 from .._base import NeedleEstimate, Status, Tracker
+from .._details import VolumeDetails
 from ._geometry import Volume
 from ._measure import Measurement
 from .params import VolumeTrackerParams  # also where tracker_params looks for it
@@ -75,11 +76,10 @@ class VolumeTracker(Tracker):
 
     Each :meth:`update` returns a :class:`NeedleEstimate` with the tip (mm, x, y, z), the unit
     direction from the entry to the tip, the tip covariance (mm^2; the Kalman filter's for
-    roi-rk and chatelain, ``r_position * I`` for ransac) and extras ``axis_point_mm`` (where
-    the visible needle starts on the axis), ``alpha_deg``, ``beta_deg`` (eq. (4)),
-    ``inliers``, ``ransac_trials`` (minimal samples drawn, initialisation included),
-    ``roi_voxels`` (voxels of the ROI/VOI; 0 for the whole volume), ``measured_tip_mm``
-    (the tip before the Kalman filter) and ``reason`` when nothing was measured.
+    roi-rk and chatelain, ``r_position * I`` for ransac), ``axis_point_mm`` (where the
+    visible needle starts on the axis), ``reason`` when nothing was measured, and
+    :class:`VolumeDetails` (angles of eq. (4), RANSAC's inliers and trials, the ROI's size,
+    the tip before the Kalman filter).
 
     A learned source must return a new array from each ``likelihood`` call: chatelain keeps
     the previous map for the difference of the next volume.
@@ -143,25 +143,24 @@ class VolumeTracker(Tracker):
     def _report(self, frame: Frame, status: Status, m: Measurement | None, tip=None,
                 direction=None, covariance=None, reason: str | None = None,
                 axis_point=None) -> NeedleEstimate:
-        extras = {"inliers": 0, "ransac_trials": 0, "roi_voxels": 0}
-        if m is not None:
-            extras.update(inliers=m.inliers, ransac_trials=m.trials, roi_voxels=m.roi_voxels)
+        counts = (0, 0, 0) if m is None else (m.inliers, m.trials, m.roi_voxels)
         if tip is None:
-            extras["reason"] = reason if reason is not None else (m.reason if m else None)
-            return NeedleEstimate(t=frame.t, status=status, extras=extras)
+            if reason is None and m is not None:
+                reason = m.reason
+            return NeedleEstimate(t=frame.t, status=status, reason=reason,
+                                  details=VolumeDetails(*counts))
         beta, alpha = angles(direction)
         if axis_point is None:  # the visible entry, on the reported axis
             length = float(m.a_tip - m.a_entry) if (m is not None and m.ok) else 0.0
             axis_point = np.asarray(tip, float) - length * np.asarray(direction, float)
-        extras.update(axis_point_mm=np.asarray(axis_point, float), alpha_deg=math.degrees(alpha),
-                      beta_deg=math.degrees(beta))
-        if m is not None and m.ok:
-            extras["measured_tip_mm"] = np.asarray(m.tip, float)
-        if reason is not None:
-            extras["reason"] = reason
+        measured = np.asarray(m.tip, float) if m is not None and m.ok else None
         return NeedleEstimate(t=frame.t, status=status, tip_mm=np.asarray(tip, float),
                               direction=np.asarray(direction, float),
-                              covariance=np.asarray(covariance, float), extras=extras)
+                              covariance=np.asarray(covariance, float), reason=reason,
+                              axis_point_mm=np.asarray(axis_point, float),
+                              details=VolumeDetails(*counts, alpha_deg=math.degrees(alpha),
+                                                    beta_deg=math.degrees(beta),
+                                                    measured_tip_mm=measured))
 
     # -- the probe moved -------------------------------------------------------------------
 
