@@ -41,7 +41,7 @@ import synth
 
 from .scene import CONTRAST_RADIUS_MM
 from .simulate import _simulate
-from .specs import PROBES, SPECS, ProbeSetup, SequenceSpec
+from .specs import PROBES, SETS, SPECS, ProbeSetup, SequenceSpec
 
 __all__ = ["PROBES", "SPECS", "ProbeSetup", "SequenceSpec", "generate", "main"]
 
@@ -273,6 +273,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m needlenet.bench.external.generate",
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, type=Path, help="directory for the .npz files")
+    ap.add_argument("--set", choices=sorted(SETS), default="test",
+                    help="the test set (needlenet/data/external) or the validation set for "
+                         "choosing between models (default: test)")
     ap.add_argument("--only", nargs="+", metavar="NAME", help="generate these sequences only")
     ap.add_argument("--frames", type=int, help="override the frame count (quick looks only)")
     ap.add_argument("--scatterers-per-cell", type=float,
@@ -283,13 +286,14 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         print("the generator needs PyMUST: pip install 'needlenet[external]'", file=sys.stderr)
         return 2
-    names = {s.name for s in SPECS}
+    chosen = SETS[args.set]
+    names = {s.name for s in chosen}
     if args.only:
         unknown = sorted(set(args.only) - names)
         if unknown:
             ap.error(f"unknown sequence(s) {unknown}; known: {sorted(names)}")
     args.out.mkdir(parents=True, exist_ok=True)
-    specs = [s for s in SPECS if not args.only or s.name in args.only]
+    specs = [s for s in chosen if not args.only or s.name in args.only]
     t0 = time.perf_counter()
     for spec in specs:
         if args.frames:

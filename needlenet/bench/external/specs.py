@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["PROBES", "SPECS", "ProbeSetup", "SequenceSpec"]
+__all__ = ["PROBES", "SPECS", "VALIDATION_SPECS", "SETS", "ProbeSetup", "SequenceSpec"]
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,10 @@ PROBES = {
     # 64 elements, 2.7 MHz; three diverging waves, beamformed on a polar grid and scan-converted
     "P4-2v": ProbeSetup("P4-2v", (-10.0, 0.0, 10.0), 75.0, 0.15, (-26.25, 26.25), (0.0, 45.0),
                         35.0),
+    # 192 elements, 5.1 MHz, 0.2 mm pitch; two plane waves only (a coarser compounding than the
+    # L11-5v's), 0.12 mm pixels. Used by the validation set only.
+    "L12-3v": ProbeSetup("L12-3v", (-8.0, 8.0), None, 0.12, (-15.0, 15.0), (1.0, 33.0),
+                         None, element_splitting=1),
 }
 
 
@@ -106,3 +110,49 @@ SPECS = (
                  interface=(0.0, 22.0, -20.0), interface_cr=2.4, vessel=(6.0, 34.0, 3.5),
                  dynamic_range_db=55, tissue_grey=85, feature="no needle; interface, vessel"),
 )
+
+
+# The validation set: other seeds, angles, gauges, echo models, grey maps and a third probe,
+# for choosing between trained models (``needlenet bench external --set validation``). The
+# test set above stays for the final report; neither is ever trained on.
+VALIDATION_SPECS = (
+    SequenceSpec("val_lin_right_top_25", "L11-5v", 301, side="right", entry_x_mm=16.0,
+                 angle_deg=25, start_mm=8.0, step_mm=1.4, n_frames=10, target_cr=2.4, gauge=19,
+                 n_reverb=2, reverb_gain=0.45, dynamic_range_db=65, gamma=1.1,
+                 tissue_grey=75),
+    SequenceSpec("val_lin_left_side_8", "L11-5v", 302, side="left", entry_x_mm=-60.0,
+                 angle_deg=8, start_mm=52.0, step_mm=1.6, n_frames=10, target_cr=3.2,
+                 gauge=18, dynamic_range_db=55, tissue_grey=100, feature="shallow"),
+    SequenceSpec("val_lin_left_top_50_interface", "L11-5v", 303, side="left", entry_x_mm=-11.0,
+                 angle_deg=50, start_mm=6.0, step_mm=1.5, n_frames=10, target_cr=2.6,
+                 gauge=20, interface=(0.0, 20.0, 44.0), interface_cr=2.4, n_reverb=4,
+                 reverb_gain=0.3, dynamic_range_db=50, tissue_grey=90,
+                 feature="bright interface below, 6 degrees off parallel"),
+    SequenceSpec("val_l12_right_side_18_faint", "L12-3v", 304, side="right", entry_x_mm=55.0,
+                 angle_deg=18, start_mm=45.0, step_mm=1.5, n_frames=10, target_cr=2.0,
+                 gauge=22, roughness=2.5, n_reverb=1, dynamic_range_db=60, gamma=0.9,
+                 tissue_grey=85, feature="faint"),
+    SequenceSpec("val_l12_left_top_35_vessel", "L12-3v", 305, side="left", entry_x_mm=-14.0,
+                 angle_deg=35, start_mm=8.0, step_mm=1.7, n_frames=10, target_cr=2.8,
+                 gauge=18, vessel=(-1.0, 12.0, 2.5), bevel_gain=0.5, dynamic_range_db=55,
+                 tissue_grey=80, feature="crosses a vessel, dull bevel"),
+    SequenceSpec("val_l12_no_needle", "L12-3v", 306, needle=False,
+                 interface=(0.0, 14.0, -12.0), interface_cr=2.8, vessel=(-6.0, 24.0, 2.5),
+                 dynamic_range_db=60, tissue_grey=90, feature="no needle; interface, vessel"),
+    SequenceSpec("val_ph_left_side_45", "P4-2v", 401, side="left", entry_x_mm=-24.0,
+                 angle_deg=45, start_mm=24.0, step_mm=1.8, n_frames=10, target_cr=2.5,
+                 gauge=17, reverb_gain=0.5, dynamic_range_db=60, gamma=1.2, tissue_grey=70),
+    SequenceSpec("val_ph_right_side_70_steep", "P4-2v", 402, side="right", entry_x_mm=13.0,
+                 angle_deg=70, start_mm=17.0, step_mm=1.6, n_frames=10, target_cr=3.0,
+                 gauge=18, dynamic_range_db=55, tissue_grey=90, feature="steep"),
+    SequenceSpec("val_ph_right_side_30_interface", "P4-2v", 403, side="right", entry_x_mm=36.0,
+                 angle_deg=30, start_mm=33.5, step_mm=1.8, n_frames=10, target_cr=2.6,
+                 gauge=16, interface=(0.0, 24.0, -27.0), interface_cr=2.6, n_reverb=2,
+                 dynamic_range_db=55, tissue_grey=85,
+                 feature="bright interface below, 3 degrees off parallel"),
+    SequenceSpec("val_ph_no_needle", "P4-2v", 404, needle=False,
+                 interface=(0.0, 16.0, 15.0), interface_cr=2.6, dynamic_range_db=50,
+                 gamma=0.9, tissue_grey=95, feature="no needle; interface"),
+)
+
+SETS = {"test": SPECS, "validation": VALIDATION_SPECS}
