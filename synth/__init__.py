@@ -4,7 +4,8 @@ Read it as world -> probe -> scanner -> sequence:
 
 - world (:mod:`synth._world`): tissue scatterers, the scattering map, the needle path;
 - probe (:mod:`synth._probe`): linear plane, Zhao's sector volume, a matrix probe;
-- scanner (:mod:`synth._scanner`): the convolution model, the needle echo, log compression;
+- scanner (:mod:`synth._scanner`, :mod:`synth._imaging`): the convolution model, the needle
+  echo, log compression;
 - sequences (:mod:`synth._scenarios`, :mod:`synth._sequence`): seeded scenarios of the five
   papers and the ``.npz`` sequence file.
 """
