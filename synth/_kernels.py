@@ -403,3 +403,28 @@ def keep_sector(pos, R, t, origin_rpt, step_rpt, shape):  # pragma: no cover - c
         out[n] = (a >= -1.0 and b >= -1.0 and c >= -1.0 and a < shape[0] and b < shape[1]
                   and c < shape[2])
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def scan_convert_trilinear(flat, out_index, base, frac, s0, s1, out):  # pragma: no cover
+    """out[out_index[i]] = the trilinear interpolation of the beam data ``flat`` at lower
+    corner ``base[i]`` (flat index; strides s0, s1, 1) and offsets ``frac[i]`` (float32).
+
+    Weights and sum in float32, corner after corner in (z, y, x) binary order: the same
+    arithmetic as summing ``data[corner] * weight`` corner by corner in numpy.
+    """
+    one = np.float32(1.0)
+    for i in range(out_index.shape[0]):
+        b = base[i]
+        f0 = frac[i, 0]
+        f1 = frac[i, 1]
+        f2 = frac[i, 2]
+        acc = np.float32(0.0)
+        for dz in range(2):
+            wz = f0 if dz else one - f0
+            for dy in range(2):
+                wy = wz * (f1 if dy else one - f1)
+                for dx in range(2):
+                    w = wy * (f2 if dx else one - f2)
+                    acc += np.float32(flat[b + dz * s0 + dy * s1 + dx]) * w
+        out[out_index[i]] = acc

@@ -21,6 +21,7 @@ from functools import cached_property
 import numpy as np
 
 from ._geometry import Grid
+from ._kernels import scan_convert_trilinear
 
 __all__ = ["PlaneProbe", "SectorProbe", "MatrixProbe", "Probe"]
 
@@ -230,7 +231,9 @@ class SectorProbe:
 
     @cached_property
     def _scan_table(self):
-        """For every output voxel inside the sector: flat corner index and weights."""
+        """For every output voxel inside the sector: its flat index, the flat beam index of
+        its lower trilinear corner (int32) and its fractional offsets (float32, (N, 3));
+        16 bytes a voxel."""
         g = self.grid
         zz, yy, xx = np.meshgrid(*[g.axis_coords(a) for a in range(3)], indexing="ij")
         pts = np.stack([xx.ravel(), yy.ravel(), zz.ravel()], axis=1)
@@ -240,28 +243,20 @@ class SectorProbe:
         out_index = np.flatnonzero(inside)
         idx = idx[inside]
         i0 = np.minimum(np.floor(idx).astype(np.int64), shape - 2)
-        f = (idx - i0).astype(np.float32)
+        f = np.ascontiguousarray((idx - i0).astype(np.float32))
         strides = np.array([shape[1] * shape[2], shape[2], 1])
-        base = i0 @ strides
-        corners, weights = [], []
-        for dz in (0, 1):
-            for dy in (0, 1):
-                for dx in (0, 1):
-                    corners.append(base + dz * strides[0] + dy * strides[1] + dx)
-                    w = ((f[:, 0] if dz else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1])
-                         * (f[:, 2] if dx else 1 - f[:, 2]))
-                    weights.append(w.astype(np.float32))
-        return out_index, np.stack(corners), np.stack(weights)
+        base = (i0 @ strides).astype(np.int32)
+        return out_index, base, f, strides
 
     def scan_convert(self, beam_data: np.ndarray) -> np.ndarray:
         """Trilinear scan conversion of beam-space data to the Cartesian grid (0 outside)."""
-        out_index, corners, weights = self._scan_table
-        flat = beam_data.reshape(-1).astype(np.float32, copy=False)
-        acc = np.zeros(len(out_index), np.float32)
-        for c in range(8):
-            acc += flat[corners[c]] * weights[c]
+        out_index, base, f, strides = self._scan_table
+        flat = beam_data.reshape(-1)
+        if flat.dtype not in (np.uint8, np.float32):
+            flat = flat.astype(np.float32)
         out = np.zeros(int(np.prod(self.output_shape)), np.float32)
-        out[out_index] = acc
+        scan_convert_trilinear(np.ascontiguousarray(flat), out_index, base, f,
+                               int(strides[0]), int(strides[1]), out)
         return out.reshape(self.output_shape)
 
     def inside_mask(self) -> np.ndarray:

@@ -31,8 +31,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.ndimage import gaussian_filter1d
 
+from ._blur import SPLAT_VAR as _SPLAT_VAR
+from ._blur import blur_axis as _blur_axis
+from ._blur import blur_const as _blur_const
+from ._cell_cache import CellCache, cache_bytes, near_cells
 from ._geometry import apply_transform, invert_rigid
 from ._imaging import ImagingParams, display_mask, log_compress, speckle_log_mean_db
 from ._kernels import (
@@ -50,8 +53,6 @@ from ._world import World
 __all__ = ["ImagingParams", "Scanner", "RenderedFrame", "NeedleEcho", "log_compress",
            "display_mask", "speckle_log_mean_db"]
 
-_SPLAT_VAR = 1.0 / 6.0  # variance (px^2) of the linear splat kernel along one axis
-
 
 def _key(a) -> bytes:
     """Cache key of a transform (or part of one): rounded to 1e-9 and with -0.0 made 0.0, so
@@ -62,43 +63,6 @@ def _key(a) -> bytes:
 def _field_key(R, tz) -> bytes:
     """Key of a plane probe's tissue field: the rotation and the depth offset it is exact for."""
     return _key(R) + _key(tz)
-
-
-def _blur_axis(arr: np.ndarray, axis: int, sigma_rows: np.ndarray) -> np.ndarray:
-    """Gaussian blur of a (..., 2) array along ``axis`` with a sigma (px) that varies with row.
-
-    Sigma already excludes the splat variance. Depth dependence is handled by blurring with a
-    few anchor sigmas and interpolating linearly between them row by row (depth bands).
-    """
-    s = np.sqrt(np.maximum(np.asarray(sigma_rows, float) ** 2 - _SPLAT_VAR, 0.0))
-    if s.max() < 0.05:
-        return arr
-    if axis == 0 or s.max() - s.min() < 0.05 * s.max():
-        sig = float(np.median(s))
-        return _blur_const(arr, axis, sig) if sig >= 0.05 else arr
-    anchors = np.unique(np.round(np.linspace(s.min(), s.max(), 4), 3))
-    pos = np.interp(s, anchors, np.arange(len(anchors)))
-    out = np.zeros_like(arr)
-    shape = [-1] + [1] * (arr.ndim - 1)
-    for k, a in enumerate(anchors):
-        w = np.clip(1.0 - np.abs(pos - k), 0.0, 1.0)
-        if not np.any(w > 0):
-            continue
-        rows = np.flatnonzero(w > 0)
-        lo, hi = max(rows[0] - 1, 0), rows[-1] + 2
-        b = _blur_const(arr, axis, a) if a >= 0.05 else arr
-        out[lo:hi] += b[lo:hi] * w[lo:hi].reshape(shape).astype(np.float32)
-    return out
-
-
-def _blur_const(arr: np.ndarray, axis: int, sigma: float) -> np.ndarray:
-    if arr.ndim == 3:  # a 2D complex image as (H, W, 2): OpenCV is much faster
-        if axis == 0:
-            return cv2.GaussianBlur(arr, (1, 2 * int(np.ceil(3 * sigma)) + 1), sigmaX=0.0001,
-                                    sigmaY=sigma, borderType=cv2.BORDER_CONSTANT)
-        return cv2.GaussianBlur(arr, (2 * int(np.ceil(3 * sigma)) + 1, 1), sigmaX=sigma,
-                                sigmaY=0.0001, borderType=cv2.BORDER_CONSTANT)
-    return gaussian_filter1d(arr, sigma, axis=axis, mode="constant", truncate=3.0)
 
 
 @dataclass
@@ -130,12 +94,26 @@ class Scanner:
     are kept, most recently built first; a field built on demand pushes the oldest out. A
     servo loop that prepares many fields along a long path raises it (the attribute may be
     changed at any time; it applies at the next on-demand build).
+
+    A 3D probe whose tissue-to-probe transform changes (a moving phantom, a probe servo)
+    keeps the tissue cells near its view (:class:`synth._cell_cache.CellCache`): their
+    scatterers, with the scattering map applied, are generated once and only moved and
+    splatted for each volume. ``cell_cache_mb`` bounds the memory of those cells (MiB, over
+    all compounding looks; 0: image every volume directly).
     """
 
+    # a 3D probe that moves without a prepared trajectory holds the cells within this
+    # distance of its view; a view that moves further takes in the cells it enters
+    _CELL_PAD_MM = 4.0
+
     def __init__(self, probe, params: ImagingParams, world: World, zhao_mode: bool = False,
-                 field_cache_size: int = 8):
+                 field_cache_size: int = 8, cell_cache_mb: float = 256.0):
         self.probe = probe
         self.field_cache_size = field_cache_size
+        if not np.isfinite(cell_cache_mb) or cell_cache_mb < 0:
+            raise ValueError(f"cell_cache_mb must be >= 0, got {cell_cache_mb!r}")
+        self.cell_cache_mb = float(cell_cache_mb)
+        self._cell_caches: dict[int, CellCache] = {}
         self.params = params
         self.world = world
         self.zhao_mode = zhao_mode
@@ -212,7 +190,7 @@ class Scanner:
         laterally or in elevation since the last frame samples a cached 3D field of the
         tissue echo (the field is exact for such translations, so stepping the probe along
         the needle, as Carriere 2016 and Ye 2025 do, costs one slice per frame); anything
-        else is imaged directly from the scatterers.
+        else is imaged from the scatterers (a moving 3D probe's from its cached cells).
         """
         M = np.asarray(tissue_to_probe, float)
         key = _key(M)
@@ -225,14 +203,14 @@ class Scanner:
                 and abs(M[2, 3] - last[2, 3]) < 1e-9):
             iq = self._field_slice(M)
         else:
-            iq = self._render_tissue(M)
+            iq = self._render_tissue(M, moved=last is not None)
             iq *= self._rows_view(self._row_gain_signal)
         self._cache_key, self._cache_iq = key, iq
         return iq
 
     def look_iq(self, tissue_to_probe: np.ndarray, look: int) -> np.ndarray:
         """Normalised tissue IQ of compounding look ``look`` (0: :meth:`tissue_iq`); other
-        looks are imaged directly and the last one of each is kept."""
+        looks are imaged from the scatterers and the last one of each is kept."""
         if look == 0:
             return self.tissue_iq(tissue_to_probe)
         M = np.asarray(tissue_to_probe, float)
@@ -240,7 +218,7 @@ class Scanner:
         hit = self._look_cache.get(look)
         if hit is not None and hit[0] == key:
             return hit[1]
-        iq = self._render_tissue(M, self._look_tissues[look])
+        iq = self._render_tissue(M, look, moved=hit is not None)
         iq *= self._rows_view(self._row_gain_signal)
         self._look_cache[look] = (key, iq)
         return iq
@@ -275,11 +253,16 @@ class Scanner:
     def prepare(self, tissue_to_probe: np.ndarray) -> None:
         """Set the world up for a whole trajectory of tissue-to-probe transforms (T, 4, 4).
 
-        When the probe only translates laterally and in elevation relative to the tissue
+        When a plane probe only translates laterally and in elevation relative to the tissue
         (stepping along the needle, following a tip), one field covering every frame is built
-        here, so that imaging a frame afterwards costs a slice of it.
+        here, so that imaging a frame afterwards costs a slice of it. When a 3D probe's
+        transform changes over the trajectory, the tissue cells near any of its views are
+        cached here (within ``cell_cache_mb``).
         """
         Ms = np.asarray(tissue_to_probe, float)
+        if self.probe.ndim == 3:
+            self._prepare_cells(Ms)
+            return
         if not isinstance(self.probe, PlaneProbe) or len(Ms) < 2:
             return
         R0, tz0 = Ms[0, :3, :3], Ms[0, 2, 3]
@@ -382,16 +365,86 @@ class Scanner:
                 "x_lo": x_col0 + mx * dx, "x_hi": x_col0 + (nxf - 1 - mx) * dx,
                 "y_lo": y_plane0 + my * dy, "y_hi": y_plane0 + (nyf - 1 - my) * dy}
 
-    def _render_tissue(self, M: np.ndarray, tissue=None) -> np.ndarray:
-        probe, p = self.probe, self.params
-        tissue = self.world.tissue if tissue is None else tissue
+    # -- tissue of a 3D probe that moves: cached cells ----------------------------------
+    def _view(self, M: np.ndarray):
+        """The probe-frame box that reaches the image (PSF margins included) and the
+        tissue-frame box that holds it under the tissue-to-probe transform ``M``."""
+        p = self.params
         el_half = 3.0 * float(self._sig_el_mm.max())
         margin = 3.0 * float(max(self._sig_lat_mm.max(), p.sigma_axial_mm))
-        lo, hi = probe.region_box(margin, el_half)
+        lo, hi = self.probe.region_box(margin, el_half)
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                             for z in (lo[2], hi[2])])
         ct = apply_transform(invert_rigid(M), corners)
-        pos, amp = tissue.scatterers_in_box(ct.min(0), ct.max(0))
+        return lo, hi, ct.min(0), ct.max(0)
+
+    def _view_cells(self, M: np.ndarray, tissue, pad_mm: float = 0.0) -> np.ndarray:
+        """The tissue cells whose scatterers (moved ``pad_mm`` or less) can reach the image
+        under ``M``, in the order the direct path images them."""
+        lo, hi, tlo, thi = self._view(M)
+        cells = tissue.cells_in_box(tlo - pad_mm, thi + pad_mm)
+        return near_cells(self.probe, tissue, cells, M, lo, hi, pad_mm)
+
+    def _cell_budget(self) -> int:
+        """Bytes one look's cell cache may hold."""
+        return int(self.cell_cache_mb * 2**20) // self.params.compound_looks
+
+    def _prepare_cells(self, Ms: np.ndarray) -> None:
+        """Cache, for every look, the cells near any of the views ``Ms`` (T, 4, 4), if the
+        transform changes and they fit the budget."""
+        if len(Ms) < 2 or np.allclose(Ms, Ms[0], atol=1e-9) or self.cell_cache_mb <= 0:
+            return
+        tissue = self.world.tissue
+        cells = np.unique(np.concatenate([self._view_cells(M, tissue) for M in Ms]), axis=0)
+        if cache_bytes(len(cells), tissue.n_per_cell) > self._cell_budget():
+            return  # each volume is imaged directly
+        for look, t in enumerate(self._look_tissues):
+            self._cell_caches[look] = CellCache(t, cells, max_cells=len(cells))
+
+    def _render_cells(self, M: np.ndarray, look: int, moved: bool) -> np.ndarray | None:
+        """Splatted (unblurred, float64) tissue IQ from the look's cell cache, built around
+        this view when the probe moved and no cache covers it; None when the direct path is
+        to be taken (a static probe without a cache, or a view too large for the budget)."""
+        cache = self._cell_caches.get(look)
+        if cache is None and not moved:
+            return None
+        tissue = self._look_tissues[look]
+        cells = self._view_cells(M, tissue)
+        slots = cache.slots(cells) if cache is not None else None
+        if slots is None:
+            if not moved:
+                self._cell_caches.pop(look, None)
+                return None
+            around = self._view_cells(M, tissue, self._CELL_PAD_MM)
+            max_cells = self._cell_budget() // cache_bytes(1, tissue.n_per_cell)
+            if len(around) > max_cells:
+                self._cell_caches.pop(look, None)
+                return None
+            if cache is None:
+                cache = self._cell_caches[look] = CellCache(tissue, around, max_cells)
+            else:
+                cache.hold(around, max_cells)  # only the cells the view enters are generated
+            slots = cache.slots(cells)
+        lo, hi, _, _ = self._view(M)
+        iq = np.zeros((*self._shape, 2))  # float64: the sum of ~10^6 phasors; the blur rounds
+        cache.splat(self.probe, slots, M, lo, hi, 2.0 * self.params.k0_per_mm, iq)
+        return iq
+
+    def _render_tissue(self, M: np.ndarray, look: int = 0, moved: bool = False) -> np.ndarray:
+        """Tissue IQ (blurred, before the row gains) of look ``look`` under ``M``: from the
+        cell cache for a 3D probe that moves, otherwise from scatterers generated here."""
+        iq = self._render_cells(M, look, moved) if self.probe.ndim == 3 else None
+        if iq is None:
+            iq = self._render_direct(M, self._look_tissues[look])
+        for axis, s in enumerate(self._sig_px):
+            iq = _blur_axis(iq, axis, s)
+        return iq.astype(np.float32, copy=False)
+
+    def _render_direct(self, M: np.ndarray, tissue) -> np.ndarray:
+        """Splatted (unblurred) tissue IQ from the scatterers of the cells around the view."""
+        probe, p = self.probe, self.params
+        lo, hi, tlo, thi = self._view(M)
+        pos, amp = tissue.scatterers_in_box(tlo, thi)
         R = np.ascontiguousarray(M[:3, :3], dtype=np.float64)
         t = np.ascontiguousarray(M[:3, 3], dtype=np.float64)
         bg = probe.beam_grid
@@ -418,8 +471,6 @@ class Scanner:
         else:
             transform_splat_field(pos, amp, R, t, lo, hi, np.asarray(bg.origin_mm),
                                   np.asarray(bg.spacing_mm), two_k, iq)
-        for axis, s in enumerate(self._sig_px):
-            iq = _blur_axis(iq, axis, s)
         return iq
 
     # -- needle ---------------------------------------------------------------------------

@@ -22,7 +22,7 @@ CASES = [
     ("servo 128x128 @0.3 mm, probe following the tip", "servo", {"start_sample": 200},
      (100, 500)),
     ("volume 128^3 (Zhao sector), static probe", "volume", {"alpha_deg": 30.0}, (6, 20)),
-    ("volume 128^3, moving phantom (Chatelain)", "volume-motion", {"output_size": 128}, (3, 8)),
+    ("volume 128^3, moving phantom (Chatelain)", "volume-motion", {"output_size": 128}, (6, 20)),
 ]
 
 
@@ -55,6 +55,8 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None) -> 
     synth.generate("inplane", seed=seed, frames=2, width_mm=8.0, depth_mm=8.0,
                    start_length_mm=12.0)
     synth.generate("volume", seed=seed, frames=1, output_size=32)
+    synth.generate("volume-motion", seed=seed, frames=2, output_size=32,
+                   scatterers_per_cell=1.0)  # the cell cache of a moving 3D probe
     rows = [] if rows is None else rows
     for name, scenario, kw, frames in CASES:
         n = frames[0] if quick else frames[1]
