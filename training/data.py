@@ -1,19 +1,18 @@
 """Training data generated on the fly by ``synth``: endless, seeded, widely randomised.
 
-Every world draws its scenario and imaging from one place (:func:`randomize`): insertion
-angles and speeds, contrast, gauge, depth, inhomogeneous backgrounds with bright distractors,
-tissue and probe motion (axial and volume worlds), needles partly out of plane, frames with no
-needle at all, and the scanner
-itself (centre frequency, bandwidth, f-numbers, foci, dynamic range, gain, TGC, noise,
-speckle density, needle echo, reverberation, shadow), so that the model does not learn one
-simulator's look. In-plane worlds go further (:func:`randomize_inplane`): needles from either
-side through the skin or the lateral border at 3-85 degrees, gauges 14-25, specular or diffuse
-shafts with or without reverberation tails, bright or dark bevels, 3-15 MHz, compounding, TGC
-curves, grey maps, capture margins, sector masks, probe-face reverberation, interfaces parallel
-to the needle, vessels, shadows and needle-free worlds. In-plane tissue stays still: the network
-sees one frame at a time, where motion changes nothing but costs a fresh tissue image per frame
-(five times the data cost per step). Frames are resampled to the model's
-spacing with the runtime's own function.
+Every world draws its scenario and imaging from one place (:func:`randomize`): insertion angles
+and speeds, contrast, gauge, depth, inhomogeneous backgrounds with bright distractors, tissue
+and probe motion, needles partly out of plane, frames with no needle at all, and the scanner
+itself (centre frequency, bandwidth, f-numbers, foci, dynamic range, gain, TGC, noise, speckle
+density, needle echo, reverberation, shadow), so that the model does not learn one simulator's
+look. In-plane worlds go further (:func:`randomize_inplane`): needles from either side through
+the skin or the lateral border at 3-85 degrees, gauges 14-25, specular or diffuse shafts with
+or without reverberation tails, bright or dark bevels, 3-15 MHz, compounding, TGC curves, grey
+maps, capture margins, sector masks, probe-face reverberation, interfaces parallel to the
+needle, vessels, shadows and needle-free worlds, whose tissue stays still: the network sees one
+frame at a time, where motion changes nothing but costs a fresh tissue image per frame. (The
+narrow worlds keep the shipped model's recipe, tissue motion included.) Frames are resampled to
+the model's spacing with the runtime's own function.
 
 Targets (on the network's output grid, half the input resolution): shaft = a Gaussian of the
 3D distance to the labelled centreline (sigma about the needle radius), tip = a Gaussian of the
@@ -151,6 +150,7 @@ def randomize(modality: str, rng: np.random.Generator,
             "depth_mm": _u(rng, 28, 50), "start_length_mm": start,
             "stop_length_mm": start + 30.0, "out_of_plane_deg": _u(rng, -3, 3),
             "elevation_offset_mm": float(rng.normal(0, 0.7)),
+            "tissue_motion_mm": _u(rng, 0, 2) if rng.random() < 0.3 else 0.0,
         }
     if modality == "inplane":
         return "inplane", randomize_inplane(rng, common)

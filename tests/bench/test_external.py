@@ -32,6 +32,22 @@ def test_the_committed_set_loads_and_covers_the_protocol(committed):
         assert 0.1 <= s.spacing_mm[0] <= 0.15
 
 
+def test_the_validation_set_is_apart_from_the_test_set(committed):
+    from importlib import resources
+
+    from needlenet.bench.external.specs import SPECS, VALIDATION_SPECS
+
+    val = ext.external_sequences(resources.files("needlenet").joinpath("data", "validation"))
+    assert [n for n, _ in val] == sorted(s.name for s in VALIDATION_SPECS)
+    assert not {s.seed for s in VALIDATION_SPECS} & {s.seed for s in SPECS}
+    assert not {n for n, _ in val} & {n for n, _ in committed}
+    for name, seq in val:
+        spec = next(s for s in VALIDATION_SPECS if s.name == name)
+        assert seq.meta["seed"] == spec.seed and seq.meta["source"] == "pymust"
+        assert seq.modality == "inplane" and seq.n_frames == spec.n_frames
+    assert {s.meta["probe"] for _, s in val} == {"L11-5v", "L12-3v", "P4-2v"}
+
+
 def test_labels_lie_inside_the_image_and_needle_free_frames_have_none(committed):
     for name, s in committed:
         needle, free = ext.frame_classes(s)

@@ -35,7 +35,7 @@ PROBES = {
     # 64 elements, 2.7 MHz; three diverging waves, beamformed on a polar grid and scan-converted
     "P4-2v": ProbeSetup("P4-2v", (-10.0, 0.0, 10.0), 75.0, 0.15, (-26.25, 26.25), (0.0, 45.0),
                         35.0),
-    # 192 elements, 5.1 MHz, 0.2 mm pitch; two plane waves only (a coarser compounding than the
+    # 192 elements, 7.5 MHz, 0.2 mm pitch; two plane waves only (a coarser compounding than the
     # L11-5v's), 0.12 mm pixels. Used by the validation set only.
     "L12-3v": ProbeSetup("L12-3v", (-8.0, 8.0), None, 0.12, (-15.0, 15.0), (1.0, 33.0),
                          None, element_splitting=1),
@@ -112,8 +112,8 @@ SPECS = (
 )
 
 
-# The validation set: other seeds, angles, gauges, echo models, grey maps and a third probe,
-# for choosing between trained models (``needlenet bench external --set validation``). The
+# The validation set (8 sequences, 7 with a needle): other seeds, angles, gauges, echo models,
+# grey maps and a third probe, for choosing between trained models (``needlenet bench external --set validation``). The
 # test set above stays for the final report; neither is ever trained on.
 VALIDATION_SPECS = (
     SequenceSpec("val_lin_right_top_25", "L11-5v", 301, side="right", entry_x_mm=16.0,
@@ -132,13 +132,6 @@ VALIDATION_SPECS = (
                  angle_deg=18, start_mm=45.0, step_mm=1.5, n_frames=10, target_cr=2.0,
                  gauge=22, roughness=2.5, n_reverb=1, dynamic_range_db=60, gamma=0.9,
                  tissue_grey=85, feature="faint"),
-    SequenceSpec("val_l12_left_top_35_vessel", "L12-3v", 305, side="left", entry_x_mm=-14.0,
-                 angle_deg=35, start_mm=8.0, step_mm=1.7, n_frames=10, target_cr=2.8,
-                 gauge=18, vessel=(-1.0, 12.0, 2.5), bevel_gain=0.5, dynamic_range_db=55,
-                 tissue_grey=80, feature="crosses a vessel, dull bevel"),
-    SequenceSpec("val_l12_no_needle", "L12-3v", 306, needle=False,
-                 interface=(0.0, 14.0, -12.0), interface_cr=2.8, vessel=(-6.0, 24.0, 2.5),
-                 dynamic_range_db=60, tissue_grey=90, feature="no needle; interface, vessel"),
     SequenceSpec("val_ph_left_side_45", "P4-2v", 401, side="left", entry_x_mm=-24.0,
                  angle_deg=45, start_mm=24.0, step_mm=1.8, n_frames=10, target_cr=2.5,
                  gauge=17, reverb_gain=0.5, dynamic_range_db=60, gamma=1.2, tissue_grey=70),
