@@ -328,7 +328,7 @@ class CrossSectionDetector:
         return (float(S[idx]) - med) / mad, float(S[idx]), idx, F, S
 
     def detect(self, image: np.ndarray, grid) -> tuple[bool, np.ndarray | None, float]:
-        from ..trackers._axial import _below_top_edge, _subpixel
+        from ..trackers._cross_section import below_top_edge, subpixel_peak
 
         self.last = {"score": 0.0, "level": float("nan"), "peak_rc": None,
                      "shaft_seen": False}
@@ -347,10 +347,10 @@ class CrossSectionDetector:
                 # the shaft without the tip's echo: ahead of the tip, or far behind it
                 self.last["shaft_seen"] = True
                 return False, None, score
-        rc = np.asarray(idx, float) + _subpixel(S, idx)
+        rc = np.asarray(idx, float) + subpixel_peak(S, idx)
         radius_rows = self.radius_mm / float(grid.spacing_mm[0])
         if not self.learned:  # Carriere's tracker: one radius below the echo's upper edge
-            rc = _below_top_edge(F, rc, float(F.mean()), radius_rows)
+            rc = below_top_edge(F, rc, float(F.mean()), radius_rows)
         elif self.target_reference == "wall":
             # the map marks the wall facing the probe: the centre lies a radius deeper (+z;
             # the needle crosses the slice nearly at right angles)

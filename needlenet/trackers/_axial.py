@@ -101,6 +101,7 @@ from ..backends import (
 )
 from ..features._base import FeatureSource, Frame
 from ._base import NeedleEstimate, Status, Tracker
+from ._cross_section import below_top_edge, bilinear, odd_px, peak_covariance, subpixel_peak
 from ._details import AxialDetails, AxialModel
 
 __all__ = ["AxialParams", "AxialTracker", "map_fit_bicycle"]
@@ -203,11 +204,6 @@ class _ReprojectedPF(CarriereParticleFilter):
         self._v = [float(x) for x in v[:-1]]
         self._u = [float(x) for x in u[:-1]]
         return self.update(float(v[-1]), float(u[-1]))
-
-
-def _odd_px(length_mm: float, spacing_mm: float) -> int:
-    n = max(int(round(length_mm / spacing_mm)), 3)
-    return n if n % 2 else n + 1
 
 
 @dataclass
@@ -461,7 +457,7 @@ class AxialTracker(Tracker):
         F = np.ascontiguousarray(self.features.likelihood(frame).shaft, dtype=np.float32)
         S, s_med, s_scale = self._score_map(F, float(spacing.mean()))
         M = self._template_image(F, frame.image)  # what the NCC templates are cut from
-        size = (_odd_px(p.template_mm, spacing[0]), _odd_px(p.template_mm, spacing[1]))
+        size = (odd_px(p.template_mm, spacing[0]), odd_px(p.template_mm, spacing[1]))
 
         def to_f0_xz(rc):
             xz = grid.index_to_points(np.asarray(rc, dtype=float))
@@ -495,10 +491,10 @@ class AxialTracker(Tracker):
                 reason = str(exc)
             if m is not None:
                 ncc_peak = m.peak
-                score = (_bilinear(S, m.center) - s_med) / s_scale
+                score = (bilinear(S, m.center) - s_med) / s_scale
                 jump = float(np.linalg.norm(to_f0_xz(m.center) - tr.last_xz_f0))
                 allowed = p.max_jump_mm + p.max_slope * abs(eps - tr.last_eps)
-                if score < p.lost_score or _bilinear(S, m.center) < self._min_peak():
+                if score < p.lost_score or bilinear(S, m.center) < self._min_peak():
                     status = Status.LOST  # the cross-section vanished
                     reason = f"no cross-section at the match (score {score:.1f})"
                 elif m.peak < p.ncc_min:
@@ -507,7 +503,7 @@ class AxialTracker(Tracker):
                     reason = f"jump {jump:.2f} mm > {allowed:.2f} mm"
                 else:
                     center, accepted = m.center, True
-                    cov = _peak_covariance(m.score, spacing)
+                    cov = peak_covariance(m.score, spacing)
                     if (p.learned_peak_refine and self._is_learned()
                             and p.learned_template == "map"):
                         center = self._refine_on_map(F, center, spacing)
@@ -572,9 +568,9 @@ class AxialTracker(Tracker):
         score = (float(S[idx]) - s_med) / s_scale
         if score < p.detect_score or float(S[idx]) < self._min_peak():
             return None, score
-        center = np.asarray(idx, dtype=float) + _subpixel(S, idx)
+        center = np.asarray(idx, dtype=float) + subpixel_peak(S, idx)
         if self._anchor() == "top_edge":
-            center = _below_top_edge(F, center, float(F.mean()),
+            center = below_top_edge(F, center, float(F.mean()),
                                      p.needle_radius_mm / float(spacing[0]))
         else:
             # a learned map of the wall facing the probe: the centre lies a radius deeper
@@ -611,73 +607,3 @@ class AxialTracker(Tracker):
             origin_depth_mm=origin_depth, rotation_depth_mm=self.rotation_depth_mm,
             pf_updates=pf_updates)
         return model, axis * (1.0 if u[-1] >= u[-2] else -1.0)  # sign of du/dv
-
-
-def _bilinear(a: np.ndarray, rc: np.ndarray) -> float:
-    r = float(np.clip(rc[0], 0, a.shape[0] - 1))
-    c = float(np.clip(rc[1], 0, a.shape[1] - 1))
-    r0, c0 = min(int(r), a.shape[0] - 2), min(int(c), a.shape[1] - 2)
-    fr, fc = r - r0, c - c0
-    q = a[r0:r0 + 2, c0:c0 + 2]
-    return float((1 - fr) * ((1 - fc) * q[0, 0] + fc * q[0, 1])
-                 + fr * ((1 - fc) * q[1, 0] + fc * q[1, 1]))
-
-
-def _subpixel(S: np.ndarray, idx: tuple[int, int]) -> np.ndarray:
-    """Parabolic vertex offset of a 2-D maximum along each axis (0 at a border)."""
-    out = np.zeros(2)
-    for ax in range(2):
-        if 0 < idx[ax] < S.shape[ax] - 1:
-            lo = list(idx)
-            hi = list(idx)
-            lo[ax] -= 1
-            hi[ax] += 1
-            a, b, c = float(S[tuple(lo)]), float(S[idx]), float(S[tuple(hi)])
-            den = a - 2 * b + c
-            if den < 0:
-                out[ax] = float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
-    return out
-
-
-def _below_top_edge(F: np.ndarray, center: np.ndarray, background: float,
-                    radius_px: float) -> np.ndarray:
-    """One needle radius below the upper edge of the echo above ``center`` (row, col).
-
-    The echo of an axial needle is its upper wall followed by a reverberation (comet) tail;
-    where the maximum of the smoothed map falls depends on the contrast. Along the column
-    through ``center`` (the mean of three columns), the brightest sample at or above it is
-    taken as the wall; the edge is where the column, going up from there, falls half way
-    down to ``background`` (linear interpolation). ``center`` is returned unchanged when no
-    edge lies within four radii, or when the column has no echo above ``background`` (a flat
-    column, e.g. at the image's edge: no edge to find, and no division by a zero step).
-    """
-    r0 = min(max(int(round(center[0])), 0), F.shape[0] - 1)
-    c = min(max(int(round(center[1])), 1), F.shape[1] - 2)
-    top = max(r0 - int(np.ceil(4 * radius_px)), 0)
-    col = F[top:r0 + 1, c - 1:c + 2].mean(axis=1)[::-1]  # upwards from the centre
-    k0 = int(np.argmax(col))
-    if not float(col[k0]) > background:  # no echo above the background (a flat column)
-        return np.asarray(center, dtype=float)
-    level = background + 0.5 * (float(col[k0]) - background)
-    below = np.flatnonzero(col[k0 + 1:] < level)
-    if below.size == 0:
-        return np.asarray(center, dtype=float)
-    k = k0 + 1 + int(below[0])  # col[k - 1] >= level > col[k], so the step is > 0
-    frac = (float(col[k - 1]) - level) / (float(col[k - 1]) - float(col[k]))
-    edge = r0 - (k - 1 + frac)
-    return np.array([edge + radius_px, float(center[1])])
-
-
-def _peak_covariance(s: np.ndarray, spacing: np.ndarray) -> np.ndarray:
-    """(x, z) covariance in mm^2 from the curvature of the NCC peak of the score map ``s``:
-    per axis (1 - peak) / |second difference| px^2, at least 1/12 px^2 (a pixel's
-    quantisation)."""
-    i, j = np.unravel_index(int(np.argmax(s)), s.shape)
-    var = np.full(2, 1.0 / 12.0)  # (row, col)
-    for ax, (lo, hi) in enumerate((((i - 1, j), (i + 1, j)), ((i, j - 1), (i, j + 1)))):
-        if min(lo) >= 0 and hi[0] < s.shape[0] and hi[1] < s.shape[1]:
-            d2 = s[lo] - 2 * s[i, j] + s[hi]
-            if d2 < 0:
-                var[ax] = max((1.0 - s[i, j]) / -d2, 1.0 / 12.0)
-    var_mm = var * spacing**2
-    return np.diag([var_mm[1], var_mm[0]])  # (x, z)

@@ -23,7 +23,7 @@ from needlenet.servo import (
 )
 from needlenet.servo._api import check_options
 from needlenet.servo._images import ServoWorld
-from needlenet.trackers._axial import _below_top_edge
+from needlenet.trackers._cross_section import below_top_edge
 from needlenet.trackers.volume import VolumeTracker
 
 
@@ -140,11 +140,11 @@ def test_servo_rows_learned_quick_keeps_the_tip_near_the_plane():
 def test_below_top_edge_on_a_flat_column_returns_the_centre():
     F = np.full((20, 10), 0.5, np.float32)
     c = np.array([10.0, 0.0])  # at the image's edge, a flat column: no edge, no division
-    assert np.array_equal(_below_top_edge(F, c, 0.5, 2.0), c)
-    assert np.array_equal(_below_top_edge(F, c, 0.7, 2.0), c)  # below the background
+    assert np.array_equal(below_top_edge(F, c, 0.5, 2.0), c)
+    assert np.array_equal(below_top_edge(F, c, 0.7, 2.0), c)  # below the background
     G = np.zeros((20, 10), np.float32)
     G[8:12, 4:7] = 1.0  # an echo with its upper edge between rows 7 and 8
-    out = _below_top_edge(G, np.array([10.0, 5.0]), 0.0, 2.0)
+    out = below_top_edge(G, np.array([10.0, 5.0]), 0.0, 2.0)
     assert out[0] == pytest.approx(7.5 + 2.0)
 
 

@@ -113,8 +113,9 @@ SPECS = (
 
 
 # The validation set (8 sequences, 7 with a needle): other seeds, angles, gauges, echo models,
-# grey maps and a third probe, for choosing between trained models (``needlenet bench external --set validation``). The
-# test set above stays for the final report; neither is ever trained on.
+# grey maps and a third probe, for choosing between trained models (``needlenet bench external
+# --data needlenet/data/validation``). The test set above stays for the final report; neither
+# is ever trained on.
 VALIDATION_SPECS = (
     SequenceSpec("val_lin_right_top_25", "L11-5v", 301, side="right", entry_x_mm=16.0,
                  angle_deg=25, start_mm=8.0, step_mm=1.4, n_frames=10, target_cr=2.4, gauge=19,
