@@ -3,6 +3,12 @@
 The model carries in its metadata the spacing it was trained at, the intensity normalisation
 and its modality. Each frame (or ROI) is resampled to the model's spacing, padded to the
 network's multiple, run, and its shaft and tip maps are mapped back to the frame's grid.
+
+A region given as voxels (a tracker's ROI) is covered by boxes of the whole frame's model
+grid, each the region's part plus ``margin_mm`` of context (:func:`plan_boxes`); the network
+runs on each box, and the maps are mapped back only around the region, by the same linear
+maps as the whole frame's (:class:`GridMaps`), so inside the region they differ from the
+whole-frame maps only by the context the boxes leave out.
 """
 
 from __future__ import annotations
@@ -16,15 +22,18 @@ import numpy as np
 from ._base import FeatureSource, Frame, FrameError, Likelihood
 from ._resample import (
     NORMALIZATIONS,
+    apply_weights,
     frame_statistics,
     model_shape,
     normalize,
     pad_to_multiple,
+    resize_weights,
     to_frame_grid,
     to_model_grid,
 )
 
-__all__ = ["LearnedFeatures", "ModelError", "shipped_model_path", "SHIPPED_MODELS", "wall_offsets"]
+__all__ = ["GridMaps", "LearnedFeatures", "ModelError", "SHIPPED_MODELS", "plan_boxes",
+           "shipped_model_path", "wall_offsets"]
 
 SHIPPED_MODELS = {"inplane": "inplane.onnx", "axial": "axial.onnx", "volume": "volume.onnx"}
 
@@ -35,6 +44,14 @@ class ModelError(ValueError):
 
 DRY_RUN_S = 5.0  # the longest the load-time dry run of a model may take
 MAX_MODEL_PIXELS = 1 << 24  # a frame on the model's grid: 4096^2 pixels or 256^3 voxels
+# plan_boxes: the fixed cost of one onnxruntime call in output samples of the network (0.1-0.2
+# ms, what a network of the shipped size spends on ~500 of them) and the most boxes a region is
+# split into; the fixed cost of mapping one part of a region back to the frame, in output
+# samples mapped, and the most parts
+CALL_COST_SAMPLES = 500
+MAX_BOXES = 8
+PART_COST_SAMPLES = 50
+MAX_PARTS = 16
 
 
 def _check_normalization_extras(norm: dict, path: Path) -> None:
@@ -76,12 +93,96 @@ def shipped_model_path(modality: str) -> Path:
     return p
 
 
+class GridMaps:
+    """The linear maps between the grid of frames of one shape and spacing and a model's grid,
+    as :meth:`LearnedFeatures.run_model` applies them (:func:`resize_weights`), one matrix
+    per axis:
+
+    - ``w_in``: frame samples -> the model's grid padded to the network's ``multiple`` (the
+      padding repeats the last sample, as :func:`pad_to_multiple`);
+    - ``w_out``: the network's output (``stride`` samples of the model's grid apart) -> frame
+      samples: up to the padded model grid, cropped to the model's grid, to the frame's grid;
+    - ``first``, ``last``: for each frame sample, the first and last output sample it reads.
+    """
+
+    def __init__(self, shape, spacing_mm, model_spacing_mm, multiple: int, stride: int):
+        self.shape = tuple(int(n) for n in shape)
+        self.model = model_shape(self.shape, tuple(spacing_mm), tuple(model_spacing_mm))
+        self.padded = tuple(n + (-n) % multiple for n in self.model)
+        self.out = tuple(-(-n // stride) for n in self.padded)
+        self.stride = stride
+        self.w_in = [np.vstack([w, np.repeat(w[-1:], p - g, axis=0)]) for w, g, p in
+                     zip(resize_weights(self.shape, self.model), self.model, self.padded,
+                         strict=True)]
+        up = resize_weights(self.out, self.padded)
+        down = resize_weights(self.model, self.shape)
+        self.w_out = [d @ u[:g] for d, u, g in zip(down, up, self.model, strict=True)]
+        nz = [w != 0 for w in self.w_out]
+        self.first = [np.argmax(z, axis=1) for z in nz]
+        self.last = [z.shape[1] - 1 - np.argmax(z[:, ::-1], axis=1) for z in nz]
+
+
+def _split(pts: np.ndarray, t: np.ndarray, k: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The bounds (inclusive) of the points in each of ``k`` equal intervals of ``t``; the
+    points sorted by ``t``."""
+    cuts = np.searchsorted(t, np.linspace(t[0], t[-1], k + 1)[1:-1], side="right")
+    starts = np.unique(np.r_[0, cuts])
+    starts = starts[starts < len(t)]
+    lo = np.minimum.reduceat(pts, starts, axis=0)
+    hi = np.maximum.reduceat(pts, starts, axis=0)
+    return list(zip(lo, hi, strict=True))
+
+
+def plan_boxes(cells: np.ndarray, grid, margin, align: int, reach):
+    """Where to run a network so that its output covers ``cells``, and the parts to map back.
+
+    ``cells`` (N, D): output samples (the first each voxel of a region reads, each reading up
+    to ``reach`` samples further per axis); ``margin``: samples of context a box adds on each
+    side (none where it meets the grid's faces, as the whole grid does); box corners are
+    multiples of ``align`` (where the network's strides line a box up with the whole grid).
+    The cells are split into parts of equal length along their principal axis (a tube along a
+    diagonal fills few of the voxels of one box around it): up to ``MAX_BOXES`` boxes, the
+    number with the fewest samples to run (each run counting ``CALL_COST_SAMPLES`` more), and
+    up to ``MAX_PARTS`` parts to map back, the number with the fewest samples to map.
+
+    Returns ``(parts, boxes)``: the inclusive bounds ``(lo, hi)`` of the cells of each part,
+    and the ``(start, stop)`` of each box, None when one run on the whole grid costs less.
+    """
+    pts = np.asarray(cells, np.int64)
+    grid, margin, reach = (np.asarray(a, np.int64) for a in (grid, margin, reach))
+    centred = pts - pts.mean(axis=0)
+    axis = np.linalg.svd(centred, full_matrices=False)[2][0] if len(pts) > 1 else \
+        np.eye(pts.shape[1])[0]
+    t = centred @ axis
+    order = np.argsort(t, kind="stable")
+    pts, t = pts[order], t[order]
+    best_boxes = best_parts = None
+    for k in range(1, max(MAX_BOXES, MAX_PARTS) + 1):
+        split = _split(pts, t, k)
+        cost = sum(int(np.prod(hi + reach + 1 - lo)) + PART_COST_SAMPLES for lo, hi in split)
+        if k <= MAX_PARTS and (best_parts is None or cost < best_parts[0]):
+            best_parts = (cost, split)
+        if k > MAX_BOXES:
+            continue
+        boxes = [(np.maximum((lo - margin) // align * align, 0),
+                  np.minimum(-(-(hi + reach + 1 + margin) // align) * align, grid))
+                 for lo, hi in split]
+        cost = sum(int(np.prod(b - a)) + CALL_COST_SAMPLES for a, b in boxes)
+        if best_boxes is None or cost < best_boxes[0]:
+            best_boxes = (cost, boxes)
+    if int(np.prod(grid)) + CALL_COST_SAMPLES <= best_boxes[0]:
+        return best_parts[1], None
+    return best_parts[1], best_boxes[1]
+
+
 class LearnedFeatures(FeatureSource):
     """Shaft and tip probability maps from an ONNX model.
 
-    ``threads``: onnxruntime intra-op threads (the session is set up for low latency:
-    sequential execution, all graph optimisations, no thread spinning between calls).
-    ``margin_mm``: context added around an ROI before inference.
+    ``threads``: onnxruntime intra-op threads (the session is set up for low latency, as
+    onnxruntime's tuning guide has it: sequential execution, all graph optimisations, and no
+    thread spinning between calls, which on a shared machine takes the cores other work
+    needs). ``margin_mm``: context added around an ROI, or around each box covering a
+    region, before inference.
     """
 
     kind = "learned"
@@ -130,6 +231,10 @@ class LearnedFeatures(FeatureSource):
             raise ModelError(f"model {path}: expected input 'image' and output 'likelihood', "
                              f"got {inputs} -> {outputs}")
         self._check_model(path)
+        if self.modality == "volume":  # load the compiled resampling now, not at a volume
+            apply_weights(np.zeros((2, 2, 2), np.float32), [np.eye(2)] * 3)
+        self._grid: GridMaps | None = None
+        self._grid_key: tuple | None = None
         self.path = path
         self.name = f"learned:{path.name}"
         self.margin_mm = float(margin_mm)
@@ -250,12 +355,19 @@ class LearnedFeatures(FeatureSource):
         # no evidence there (the tracker then says lost), never a NaN estimate
         return np.fmin(np.fmax(to_frame_grid(up, image.shape), 0.0), 1.0)
 
-    def likelihood(self, frame: Frame, roi: tuple[slice, ...] | None = None) -> Likelihood:
+    def likelihood(self, frame: Frame, roi=None) -> Likelihood:
+        """Maps on the frame's grid. ``roi``: None (the whole frame); a tuple of slices (one
+        box, run with ``margin_mm`` of context around it); or the flat indices of a region's
+        voxels (:meth:`region_likelihood`). Away from the ROI or region the maps are 0."""
         im = np.asarray(frame.image)
         sp = frame.grid.spacing_mm
+        if roi is None and im.ndim == 3:  # mapped back by GridMaps, in half cv2's time
+            return self.region_likelihood(frame, None)
         if roi is None:
             maps = self.run_model(im, sp)
             return Likelihood(shaft=maps[0], tip=maps[1], source=self.name)
+        if isinstance(roi, np.ndarray):
+            return self.region_likelihood(frame, roi)
         # an ROI: add context, run on the crop, paste into empty full-size maps
         m = [int(np.ceil(self.margin_mm / s)) for s in sp]
         big = tuple(slice(max((r.start or 0) - k, 0), min((r.stop or n) + k, n))
@@ -265,4 +377,90 @@ class LearnedFeatures(FeatureSource):
         shaft = np.zeros(im.shape, np.float32)
         tip = np.zeros(im.shape, np.float32)
         shaft[big], tip[big] = maps[0], maps[1]
+        return Likelihood(shaft=shaft, tip=tip, source=self.name)
+
+    def _grid_maps(self, shape, spacing_mm) -> GridMaps:
+        """The :class:`GridMaps` of frames of this shape and spacing (the last one kept)."""
+        key = (tuple(shape), tuple(float(s) for s in spacing_mm))
+        if self._grid_key != key:
+            self._grid = GridMaps(shape, spacing_mm, self.spacing_mm, self.multiple, self.stride)
+            self._grid_key = key
+        return self._grid
+
+    def _run_box(self, x: np.ndarray) -> np.ndarray | None:
+        """The shaft and tip outputs for a model-grid input ``x``; None when their shape is not
+        ``x``'s over the stride (a model the region path cannot line up)."""
+        y = self.session.run(["likelihood"], {"image": x[None, None].astype(np.float32)})[0][0]
+        want = tuple(-(-n // self.stride) for n in x.shape)
+        return y[:2] if tuple(y.shape[1:]) == want else None
+
+    def region_likelihood(self, frame: Frame, region: np.ndarray | None) -> Likelihood:
+        """Maps valid on the voxels ``region`` (flat indices; None: every voxel); 0 away from
+        the parts of the frame around them.
+
+        The voxels' output samples are covered by boxes of the whole frame's padded model grid
+        (:func:`plan_boxes`, with ``margin_mm`` of context, or the whole grid where that costs
+        less); each box is resampled from the frame by the rows of the whole frame's linear
+        maps (:class:`GridMaps`), normalised with the whole frame's statistics and run; its
+        output away from the context is pasted into the output grid, which is mapped to the
+        frame's grid around the region's parts only. Where the context covers the network's
+        receptive field the maps are :meth:`run_model`'s (to float rounding)."""
+        im = np.asarray(frame.image)
+        sp = frame.grid.spacing_mm
+        try:
+            self.check_frame_size(im.shape, sp)
+        except ModelError as exc:
+            raise FrameError(str(exc)) from None
+        g = self._grid_maps(im.shape, sp)
+        align = self.multiple // self.stride if self.multiple % self.stride == 0 else 0
+        margin = [int(np.ceil(self.margin_mm / (self.stride * s))) for s in self.spacing_mm]
+        if region is None or not align:  # every voxel, from one run on the whole grid
+            shaft = np.empty(im.shape, np.float32)
+            tip = np.empty(im.shape, np.float32)
+            parts, boxes = [(np.zeros(im.ndim, int), np.asarray(g.out) - 1)], None
+        else:
+            shaft = np.zeros(im.shape, np.float32)
+            tip = np.zeros(im.shape, np.float32)
+            region = np.asarray(region, np.int64).reshape(-1)
+            if region.size == 0:
+                return Likelihood(shaft=shaft, tip=tip, source=self.name)
+            idx = np.unravel_index(region, im.shape)
+            hit = np.zeros(g.out, bool)  # the output samples the region's voxels start reading
+            hit[tuple(f[i] for f, i in zip(g.first, idx, strict=True))] = True
+            reach = [int(np.max(b - a)) for a, b in zip(g.first, g.last, strict=True)]
+            parts, boxes = plan_boxes(np.argwhere(hit), g.out, margin, align, reach)
+        level = frame_statistics(im, self.normalization)
+        if boxes is None:
+            x = normalize(to_model_grid(im, sp, self.spacing_mm), self.normalization, level)
+            y = self._run_box(pad_to_multiple(x, self.multiple)[0])
+        else:
+            y = np.zeros((2, *g.out), np.float32)
+            for start, stop in boxes:
+                rows = [w[self.stride * a:self.stride * b] for w, a, b in
+                        zip(g.w_in, start, stop, strict=True)]
+                cols = [np.flatnonzero(r.any(axis=0)) for r in rows]
+                crop = tuple(slice(c[0], c[-1] + 1) for c in cols)
+                x = apply_weights(im[crop], [r[:, c] for r, c in zip(rows, crop, strict=True)])
+                out = self._run_box(normalize(x, self.normalization, level))
+                if out is None:
+                    y = None
+                    break
+                core = tuple(slice(a + m if a > 0 else 0, b - m if b < n else n) for a, b, m, n
+                             in zip(start, stop, margin, g.out, strict=True))
+                y[(slice(None),) + core] = out[(slice(None),) + tuple(
+                    slice(c.start - a, c.stop - a) for c, a in zip(core, start, strict=True))]
+        if y is None:  # a model whose output does not line up: the whole frame, resized
+            maps = self.run_model(im, sp)
+            return Likelihood(shaft=maps[0], tip=maps[1], source=self.name)
+        for lo, hi in parts:
+            rows = tuple(slice(int(np.searchsorted(f, a, "left")),
+                               int(np.searchsorted(f, b, "right")))
+                         for f, a, b in zip(g.first, lo, hi, strict=True))
+            cols = tuple(slice(int(f[r.start]), int(la[r.stop - 1]) + 1)
+                         for f, la, r in zip(g.first, g.last, rows, strict=True))
+            maps = apply_weights(y[(slice(None),) + cols],
+                                 [w[r, c] for w, r, c in zip(g.w_out, rows, cols, strict=True)])
+            # NaN (a model that fails somewhere) becomes 0, as in run_model
+            np.fmin(np.fmax(maps, 0.0, out=maps), 1.0, out=maps)
+            shaft[rows], tip[rows] = maps[0], maps[1]
         return Likelihood(shaft=shaft, tip=tip, source=self.name)

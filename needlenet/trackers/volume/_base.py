@@ -15,11 +15,16 @@ from ...backends import direction_to_angles, predict, update
 from ...features._base import FeatureSource, Frame
 from .._base import NeedleEstimate, Status, Tracker
 from .._details import VolumeDetails
-from ._geometry import Volume
+from ._geometry import Volume, cylinder
 from ._measure import Measurement
 from .params import VolumeTrackerParams  # also where tracker_params looks for it
 
-__all__ = ["StateFilter", "VolumeTracker", "VolumeTrackerParams", "angles", "wrap"]
+__all__ = ["MAP_PAD_MM", "StateFilter", "VolumeTracker", "VolumeTrackerParams", "angles", "wrap"]
+
+# Learned maps of a tracking method's ROI/VOI are computed on a cylinder this much wider and
+# longer: the profile along the fitted axis reads the map up to profile_radius_mm (0.25 mm)
+# off it, through a linear interpolation of the voxels around each sample.
+MAP_PAD_MM = 1.0
 
 
 def angles(u) -> tuple[float, float]:
@@ -81,8 +86,12 @@ class VolumeTracker(Tracker):
     :class:`VolumeDetails` (angles of eq. (4), RANSAC's inliers and trials, the ROI's size,
     the tip before the Kalman filter).
 
-    A learned source must return a new array from each ``likelihood`` call: chatelain keeps
-    the previous map for the difference of the next volume.
+    With a learned source the maps are computed for the whole volume where a method detects
+    or initialises (every volume for ransac), and once roi-rk or chatelain tracks, only on
+    the cylinder it reads (its ROI/VOI, ``MAP_PAD_MM`` wider): the source is asked for
+    ``likelihood(frame, roi=flat_indices)``. A learned source must return a new array from
+    each ``likelihood`` call: chatelain keeps the previous map for the difference of the next
+    volume.
     """
 
     modality = "volume"
@@ -131,7 +140,8 @@ class VolumeTracker(Tracker):
     def _step(self, frame: Frame) -> NeedleEstimate:
         if frame.grid.ndim != 3:
             raise ValueError(f"VolumeTracker needs 3D volumes, got a {frame.grid.ndim}D frame")
-        vol = Volume(frame, self.features.likelihood(frame), self._learned)
+        # the maps are computed when the method first reads them, or for its region
+        vol = Volume(frame, None, self._learned, self.features)
         est = self._track(frame, vol, self._dt(frame.t))
         self._t_prev = frame.t
         return est
@@ -139,6 +149,16 @@ class VolumeTracker(Tracker):
     def _track(self, frame: Frame, vol: Volume, dt: float) -> NeedleEstimate:
         """The method's step on one volume, ``dt`` seconds after the previous one."""
         raise NotImplementedError
+
+    def _region_maps(self, vol: Volume, point, direction, radius_mm: float,
+                     t_range: tuple[float, float] = (-math.inf, math.inf)) -> None:
+        """With learned features, the maps of ``vol`` computed only on the cylinder a tracking
+        method reads (its ROI/VOI, :func:`cylinder`'s arguments), ``MAP_PAD_MM`` wider and
+        longer; classical maps stay the whole volume's."""
+        if vol.learned:
+            lo, hi = t_range
+            vol.load_maps(cylinder(vol, point, direction, radius_mm + MAP_PAD_MM,
+                                   (lo - MAP_PAD_MM, hi + MAP_PAD_MM)))
 
     def _report(self, frame: Frame, status: Status, m: Measurement | None, tip=None,
                 direction=None, covariance=None, reason: str | None = None,

@@ -14,7 +14,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
-from ...features._base import Frame, Likelihood
+from ...features._base import FeatureSource, Frame, Likelihood
 
 __all__ = ["RING_MIN_SAMPLES", "Volume", "ball", "boundary_distance", "cross_section",
            "cylinder", "first_run_out", "perpendiculars", "profile", "ring_section",
@@ -39,22 +39,57 @@ RAYS /= np.linalg.norm(RAYS, axis=1, keepdims=True)
 
 
 class Volume:
-    """One volume with what every method needs: the feature map, the sector, mm conversions."""
+    """One volume with what every method needs: the feature map, the sector, mm conversions.
 
-    def __init__(self, frame: Frame, likelihood: Likelihood, learned: bool):
+    The maps are ``likelihood``'s, or, when it is None, ``features``' for the frame, computed
+    when first read (the whole volume) or when a method asks for those of its region
+    (:meth:`load_maps`)."""
+
+    def __init__(self, frame: Frame, likelihood: Likelihood | None, learned: bool,
+                 features: FeatureSource | None = None):
         self.image = np.asarray(frame.image)
         self.grid = frame.grid
         self.spacing = np.asarray(self.grid.spacing_mm, float)  # array order
         self.origin = np.asarray(self.grid.origin_mm, float)
         self.shape = np.asarray(self.grid.shape)
-        self.values = np.asarray(likelihood.shaft, dtype=np.float32)
-        # a learned source's tip channel (None for classical features)
-        tip = getattr(likelihood, "tip", None)
-        self.tip = (np.asarray(tip, dtype=np.float32)
-                    if learned and tip is not None and np.shape(tip) == self.values.shape
-                    else None)
         self.learned = learned
         self.sector = self.image > 0  # scan-converted volumes are 0 outside the sector
+        self._frame, self._features = frame, features
+        self._maps: tuple[np.ndarray, np.ndarray | None] | None = None
+        self.whole = False  # the maps cover the whole volume
+        if likelihood is not None:
+            self._set_maps(likelihood, whole=True)
+
+    def _set_maps(self, likelihood: Likelihood, whole: bool) -> None:
+        values = np.asarray(likelihood.shaft, dtype=np.float32)
+        # a learned source's tip channel (None for classical features)
+        tip = getattr(likelihood, "tip", None)
+        tip = (np.asarray(tip, dtype=np.float32)
+               if self.learned and tip is not None and np.shape(tip) == values.shape else None)
+        self._maps, self.whole = (values, tip), whole
+
+    def load_maps(self, region: np.ndarray | None = None) -> None:
+        """The feature source's maps of the whole volume, or (``region``: flat indices) valid
+        on those voxels and 0 away from them: a learned source runs its network only there
+        (:meth:`LearnedFeatures.region_likelihood`), a classical one may give the whole."""
+        f = self._features
+        lk = f.likelihood(self._frame) if region is None else f.likelihood(self._frame,
+                                                                          roi=region)
+        self._set_maps(lk, whole=region is None)
+
+    @property
+    def values(self) -> np.ndarray:
+        """The feature map (shaft likelihood with learned features), float32."""
+        if self._maps is None:
+            self.load_maps()
+        return self._maps[0]
+
+    @property
+    def tip(self) -> np.ndarray | None:
+        """A learned source's tip map, or None."""
+        if self._maps is None:
+            self.load_maps()
+        return self._maps[1]
 
     def points(self, flat_index: np.ndarray) -> np.ndarray:
         """Voxel centres (N, 3) in mm, point order, of flat indices."""
@@ -128,19 +163,20 @@ def cylinder(vol: Volume, point_mm, direction, radius_mm: float,
 
 
 def ball(vol: Volume, centre_mm, radius_mm: float) -> np.ndarray:
-    """Flat indices of the sector voxels within ``radius_mm`` of a point."""
+    """Flat indices (ascending) of the sector voxels within ``radius_mm`` of a point."""
     c = vol.to_index(np.asarray(centre_mm, float))
     half = radius_mm / vol.spacing
     lo = np.maximum(np.floor(c - half), 0).astype(int)
     hi = np.minimum(np.ceil(c + half) + 1, vol.shape).astype(int)
     if np.any(hi <= lo):
         return np.zeros(0, np.int64)
-    axes = [np.arange(lo[i], hi[i]) for i in range(3)]
-    d = [((axes[i] - c[i]) * vol.spacing[i]) ** 2 for i in range(3)]
-    inside = d[0][:, None, None] + d[1][None, :, None] + d[2][None, None, :] <= radius_mm**2
-    idx = np.nonzero(inside)
-    flat = np.ravel_multi_index(tuple(idx[i] + lo[i] for i in range(3)), vol.grid.shape)
-    return flat[vol.sector.reshape(-1)[flat]]
+    d = [((np.arange(lo[i], hi[i]) - c[i]) * vol.spacing[i]) ** 2 for i in range(3)]
+    box = tuple(slice(a, b) for a, b in zip(lo, hi, strict=True))
+    inside = np.zeros(vol.grid.shape, bool)  # marked in place: no index arrays of the box
+    np.less_equal((d[0][:, None] + d[1][None, :])[:, :, None] + d[2][None, None, :],
+                  radius_mm**2, out=inside[box])
+    inside[box] &= vol.sector[box]
+    return np.flatnonzero(inside)
 
 
 # --------------------------------------------------------------------------------------------

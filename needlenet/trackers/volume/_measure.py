@@ -53,7 +53,11 @@ def fail(reason: str, trials: int = 0, roi_voxels: int = 0, inliers: int = 0) ->
 
 def threshold(vol: Volume, mp: MeasurementParams) -> float:
     """T_I of eq. (B1): the ``threshold_percentile`` of the feature over the sector, or the
-    fixed gray level ``intensity_threshold`` (Zhao Table 3) on [0, 1] features."""
+    fixed gray level ``intensity_threshold`` (Zhao Table 3) on [0, 1] features. Learned
+    features: ``likelihood_threshold``, the level :func:`measure` applies to them (their map
+    is not read, so a map computed on a region only does not change it)."""
+    if vol.learned:
+        return float(mp.likelihood_threshold)
     if mp.intensity_threshold is not None:
         return float(mp.intensity_threshold) / 255.0
     s = mp.percentile_stride

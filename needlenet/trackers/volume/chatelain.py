@@ -68,7 +68,10 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
     def reset(self) -> None:
         super().reset()
         self._kf: StateFilter | None = None
-        self._prev_map: np.ndarray | None = None  # for the insertion detection
+        # the previous volume's whole map for the insertion detection's difference, or the
+        # volume itself when tracking computed only its VOI's learned maps
+        self._prev_map: np.ndarray | None = None
+        self._prev_frame: Frame | None = None
         self._detector: InsertionDetector | None = None  # made for the first volume's grid
         self._pending: tuple[np.ndarray, int] | None = None  # detection, volumes left
         self._misses = 0
@@ -93,11 +96,25 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
         return voxel_count(p.chatelain.voi_candidates_mm3, vol, 2 * p.measurement.min_inliers)
 
     def _track(self, frame: Frame, vol: Volume, dt: float) -> NeedleEstimate:
+        est = self._search(frame, vol, dt) if self._kf is None else self._follow(frame, vol, dt)
+        self._prev_map = vol.values if vol.whole else None
+        # without its whole map, the volume itself (a copy: a source may reuse its buffer)
+        self._prev_frame = (None if self._prev_map is not None else
+                            replace(frame, image=np.array(frame.image)))
+        return est
+
+    def _previous_map(self, vol: Volume) -> np.ndarray | None:
+        """The previous volume's whole map: kept, or computed again from its frame when
+        tracking computed only its VOI's (the step after a loss)."""
+        if self._prev_map is None and self._prev_frame is not None:
+            self._prev_map = Volume(self._prev_frame, None, vol.learned, self.features).values
+        return self._prev_map
+
+    def _follow(self, frame: Frame, vol: Volume, dt: float) -> NeedleEstimate:
+        """Chatelain II-C and II-D: predict the control points, measure the needle in the VOI
+        around the predicted curve, correct."""
         p = self.params
         c = p.chatelain
-        previous, self._prev_map = self._prev_map, vol.values
-        if self._kf is None:
-            return self._search(frame, vol, previous, dt)
         n, layout, kf = c.n_control_points, self._layout, self._kf
         model = self._model(dt)
         kf.predict(F=model.F, Q=model.Q)  # eqs. (10)-(11)
@@ -108,8 +125,9 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
             k0 = chord / length  # predicted principal direction k0^- (eq. (22))
             bow = 0.0 if n == 2 else float(np.linalg.norm(ctrl[1] - 0.5 * (ctrl[0] + ctrl[-1])))
             # VOI around the predicted curve (its chord, widened by the bow of a curve).
-            region = cylinder(vol, ctrl[0], k0, c.voi_radius_mm + bow,
-                              (-c.voi_margin_mm, length + c.voi_margin_mm))
+            extent = (-c.voi_margin_mm, length + c.voi_margin_mm)
+            region = cylinder(vol, ctrl[0], k0, c.voi_radius_mm + bow, extent)
+            self._region_maps(vol, ctrl[0], k0, c.voi_radius_mm + bow, extent)  # learned
             m = measure(vol, region, threshold(vol, p.measurement), p, self.rng,
                         max_trials=p.measurement.init_max_trials, predicted_direction=k0,
                         max_angle_deg=c.max_angle_deg, fixed_size=self._voi_count(vol),
@@ -151,7 +169,7 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
         (the scan-converted sector is the volume whose boundary Chatelain's entry lies on)."""
         return boundary_distance(vol, point, self.params.chatelain.insertion.distance_threshold_mm)
 
-    def _search(self, frame: Frame, vol: Volume, previous, dt: float) -> NeedleEstimate:
+    def _search(self, frame: Frame, vol: Volume, dt: float) -> NeedleEstimate:
         """Chatelain II-B: wait for a localised change, then fit the needle around it.
 
         The change map is ``|I_t - I_(t-1)|`` (or the change of a learned likelihood). The
@@ -166,10 +184,12 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
         delta = c.insertion.distance_threshold_mm
         status = self._not_found()
         reason = "first volume: nothing to compare with"
-        if previous is not None and previous.shape == vol.values.shape:
+        values = vol.values  # the whole map: this volume's change, and the next volume's
+        previous = self._previous_map(vol)
+        if previous is not None and previous.shape == values.shape:
             if self._detector is None:
                 self._detector = InsertionDetector(self._insertion_params(vol))
-            detection = self._detector.update_difference(np.abs(vol.values - previous),
+            detection = self._detector.update_difference(np.abs(values - previous),
                                                          vol.spacing)  # eqs. (1)-(2)
             reason = detection.reason
             if detection.median_mm is not None:
@@ -263,4 +283,4 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
             kf.P = B @ kf.P @ B.T
         if self._pending is not None:
             self._pending = (R @ self._pending[0] + t, self._pending[1])
-        self._prev_map = None
+        self._prev_frame = self._prev_map = None

@@ -89,6 +89,7 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         u_pred = angles_to_direction(*kf.x[ANGLES])
         tip_pred = kf.x[TIP]
         region = cylinder(vol, tip_pred, u_pred, r.roi_radius_mm)  # eq. (1)
+        self._region_maps(vol, tip_pred, u_pred, r.roi_radius_mm)  # learned: the ROI's maps
         m = measure(vol, region, level, p, self.rng, max_trials=p.measurement.max_trials,
                     predicted_direction=u_pred, predicted_tip=tip_pred)
         reason = None
