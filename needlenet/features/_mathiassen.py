@@ -493,13 +493,17 @@ class TipFeatures:
     """Everything sampled along one axis: ``x_mm`` (n,) positions from the ROI corner,
     ``E`` (5, n) the features E_1..E_5 (None for a learned tip map), ``line`` (n,) the
     feature image on the line echo and ``background`` (n,) and ``background_sd`` (n,) the mean
-    and spread of the band above it, for the shaft contrast."""
+    and spread of the band above it, for the shaft contrast. ``null_difference`` (n,): the same
+    line-minus-band difference with both moved up by as much as the strip allows (1.4 mm:
+    the band then ends at the strip's edge), where both lie in tissue: what the difference is
+    where no line is; None for a learned source."""
 
     x_mm: np.ndarray
     E: np.ndarray | None
     line: np.ndarray
     background: np.ndarray
     background_sd: np.ndarray
+    null_difference: np.ndarray | None = None
 
     def shaft_contrast(self, x_from_mm: float, x_to_mm: float, floor: float = 0.02) -> float:
         """(mean line - mean background) / background spread over [x_from, x_to]: about 0 on
@@ -583,8 +587,13 @@ def tip_features(image: np.ndarray, previous: np.ndarray | None, grid: Grid,
     n_rows = min(n_rows, half - sq_w // 2)
     E5 = region_difference(sq_at(n_rows), L)  # eq. (7), K^SQ image shifted n up
     bg = strip[bg_rows]
+    up = int(np.flatnonzero(bg_rows)[0])  # rows from the strip's top edge to the band's
+    null = None
+    if y[up] - y[0] > 2 * p.line_half_width_mm:  # the moved line stays clear of the echo
+        null = (strip[np.roll(line_rows, -up)].mean(axis=0)
+                - strip[np.roll(bg_rows, -up)].mean(axis=0))
     return TipFeatures(x, np.stack([E1, E2, E3, E4, E5]), line, bg.mean(axis=0),
-                       bg.std(axis=0))
+                       bg.std(axis=0), null)
 
 
 def tip_likelihood(features: TipFeatures, weights) -> np.ndarray:

@@ -88,6 +88,9 @@ class InplaneDetails(EstimateDetails):
     mirrored: bool = False
     # the needle enters from the left: the frames were mirrored for the paper's geometry and
     # the estimate mirrored back
+    echo_coverage: float | None = None
+    # classical features: share of the axis's sections, first ray to tip, whose line echo
+    # stands out of the tissue noise (the needle is seen at InplaneParams.echo_coverage)
 
 
 @dataclass(frozen=True)

@@ -18,13 +18,15 @@ over +-5 degrees around the expected insertion angle or, when none is given, ove
 degrees) and the needle is taken as found when the shaft contrast along the axis (the mean of
 the line echo minus the mean of a tissue band 2-3 mm above it, over the background's spread;
 about 0 on tissue and 3-5 on a needle) reaches ``detect_contrast`` over at least
-``min_length_mm``. Because the fixed ROI's 12 rays span the whole image and a needle that has
-just entered meets only two or three of them, the detection searches once more with the
-feedback ROI up to the tip it found and keeps the better axis; the filters start there (the
-paper starts its method by hand once 10 mm of needle is visible). ``tracking``: each frame
-measures as its method says; a frame whose contrast is below ``keep_contrast`` is not used as a
-measurement (the filters only predict), and after ``lost_after_frames`` such frames in a row the
-tracker reports ``lost``, forgets its filters and searches again.
+``min_length_mm`` and the echo shows along the axis from the first ray to the tip, not only on
+average (:mod:`._inplane_evidence`). Because the fixed ROI's 12 rays span the whole image and
+a needle that has just entered meets only two or three of them, the detection searches once
+more with the feedback ROI up to the tip it found and keeps the better axis; the filters start
+there (the paper starts its method by hand once 10 mm of needle is visible). ``tracking``:
+each frame measures as its method says; a frame on which the needle is not seen (contrast
+below ``keep_contrast``, or no echo along the axis) is not used as a measurement (the filters
+only predict) and reports ``lost`` without a tip, and after ``lost_after_frames`` such frames
+in a row the tracker forgets its filters and searches again.
 
 The KF on theta (methods 4-11) filters the searched angle; the line at the filtered angle goes
 through the centroid of the needle points p_k that lie on the needle (rays up to the last tip
@@ -50,19 +52,15 @@ the needle points across the rays plus the angle's variance times the needle len
 from __future__ import annotations
 
 from collections import deque
+from copy import deepcopy
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
 
 import numpy as np
 
 from ..backends import (
     MathiassenAngleFilter,
     MathiassenAngleParams,
-    MathiassenPFParams,
-    MathiassenTipFilter,
     MathiassenTipParams,
-    MathiassenTipParticleFilter,
-    tip_candidates,
 )
 from ..features._base import FeatureSource, Frame
 from ..features._hough import DFParams, ding_fenster
@@ -81,6 +79,8 @@ from ..features._mathiassen import (
 )
 from ._base import NeedleEstimate, Status, Tracker
 from ._details import InplaneDetails
+from ._inplane_evidence import classical_echo_seen, learned_level_reached
+from ._inplane_tip import TipFiltering, TipStep, mm_to_px
 
 __all__ = ["InplaneParams", "InplaneTracker"]
 
@@ -108,9 +108,12 @@ class InplaneParams:
     a learned source that marks the wall facing the probe is moved by it to the centre line.
     ``learned_level``: with a learned source the needle also counts as seen only where its
     shaft probability along the axis averages at least this (the map's decision level; the
-    shaft contrast of a clean probability map is large even for a faint response). A frame
-    on which the needle is not seen reports ``lost`` without a tip while the filters predict
-    through it; after ``lost_after_frames`` such frames the track is forgotten.
+    shaft contrast of a clean probability map is large even for a faint response).
+    ``echo_z``/``echo_coverage``: with classical features the needle also counts as seen only
+    where at least ``echo_coverage`` of the axis's sections (first ray to tip, and of its half
+    at the entry) stand ``echo_z`` noise SDs out of the tissue (:mod:`._inplane_evidence`).
+    A frame on which the needle is not seen reports ``lost`` without a tip while the filters
+    predict through it; after ``lost_after_frames`` such frames the track is forgotten.
     ``entry_side``: the paper's needle enters at the top right; ``"left"`` mirrors every frame
     (and the estimates back) for a needle from the left, and ``"auto"`` detects on both and
     keeps the side where the needle stands out more, deciding again at each detection.
@@ -131,6 +134,14 @@ class InplaneParams:
     needle_radius_mm: float = 1.054  # 14 G (2.108 mm outer diameter)
     entry_side: str = "auto"
     learned_level: float = 0.5
+    # a section of the axis (2s+1 samples) shows the echo at 2 noise SDs of the line-minus-
+    # band difference on tissue, the level at which the line tracker takes a pixel for echo;
+    # about 5% of sections of arbitrary axes on needle-free frames reach it, never a majority
+    echo_z: float = 2.0
+    # a straight needle's echo runs along its whole length (Algorithm 1's premise); half of
+    # the axis (and of its entry half) leaves room for faint stretches and a tip estimate
+    # ahead of the needle; the learned map's decision level, read as a share of the axis
+    echo_coverage: float = 0.5
 
     def __post_init__(self) -> None:
         if self.entry_side not in ENTRY_SIDES:
@@ -144,6 +155,9 @@ class InplaneParams:
             raise ValueError("lost_after_frames must be >= 1")
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
             raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
+        if not self.echo_z > 0 or not 0.0 < self.echo_coverage <= 1.0:
+            raise ValueError(f"need echo_z > 0 and 0 < echo_coverage <= 1, got {self.echo_z}, "
+                             f"{self.echo_coverage}")
 
 
 def _mirror_estimate(est: NeedleEstimate, grid) -> NeedleEstimate:
@@ -162,23 +176,7 @@ def _mirror_estimate(est: NeedleEstimate, grid) -> NeedleEstimate:
                    details=replace(est.details, mirrored=True))
 
 
-class _TipStep(NamedTuple):
-    """The tip filter's result on one frame (the last five: see :class:`InplaneDetails`)."""
-
-    along_mm: float  # the tip along the axis
-    var_px2: float | None  # its variance, paper px^2; None for OM (R_MIN is reported)
-    velocity: str | None = None
-    candidates: int | None = None
-    accepted: bool | None = None
-    velocity_mm_s: float | None = None
-    measurement_mm: float | None = None
-
-
-def _mm_to_px(mm):
-    return np.asarray(mm, dtype=float) / PAPER_PX_MM
-
-
-class InplaneTracker(Tracker):
+class InplaneTracker(TipFiltering, Tracker):
     """Mathiassen 2017's in-plane trackers (Table III).
 
     Parameters
@@ -387,14 +385,15 @@ class InplaneTracker(Tracker):
         p = self.params
         axis, feats, h, x_tip, contrast = found
         first = float(axis.rays_mm[0])
-        if contrast < p.detect_contrast or x_tip - first < p.min_length_mm or \
-                not self._learned_shaft_seen(feats, first, x_tip):
-            details = InplaneDetails(contrast, theta_measured_deg=axis.theta_deg)
+        seen, cover = self._needle_seen(feats, first, x_tip)
+        if contrast < p.detect_contrast or x_tip - first < p.min_length_mm or not seen:
+            details = InplaneDetails(contrast, theta_measured_deg=axis.theta_deg,
+                                     echo_coverage=cover)
             return NeedleEstimate(t=frame.t, status=self.status, reason="no needle found",
                                   details=details)
         self._start_track(axis, x_tip, frame)
-        return self._estimate(frame, axis, _TipStep(x_tip, None), h, feats, contrast, tip_map,
-                              axis.theta_deg, detected=True)
+        return self._estimate(frame, axis, TipStep(x_tip, None), h, feats, contrast, tip_map,
+                              axis.theta_deg, detected=True, coverage=cover)
 
     def _start_track(self, axis: AxisEstimate, x_tip_mm: float, frame: Frame) -> None:
         self._clear_track()
@@ -406,31 +405,8 @@ class InplaneTracker(Tracker):
             if velocity is None and self.params.two_point_start:
                 self._first_fix = (x_tip_mm, float(frame.t))  # the filter starts next frame
             else:
-                self._tip_filter = self._make_tip_filter(float(_mm_to_px(x_tip_mm)), velocity)
+                self._tip_filter = self._make_tip_filter(float(mm_to_px(x_tip_mm)), velocity)
         self._tip_along_mm = x_tip_mm
-
-    def _velocity_px_s(self, frame: Frame) -> float | None:
-        """The robot's insertion speed along the axis in px/s (KF_v, PF_v), else None."""
-        if not self.use_velocity or frame.insertion_speed_mm_s is None:
-            return None
-        return float(_mm_to_px(frame.insertion_speed_mm_s))
-
-    def _make_tip_filter(self, x0_px: float, v_px_s: float | None):
-        """Table II's KF (frame units, see the module doc) or section III-B's PF."""
-        dt = self.dt_s
-        v0 = 0.0 if v_px_s is None else v_px_s
-        if self.filter_kind == "kf":
-            fps = 1.0 / dt
-            params = MathiassenTipParams(
-                dt_s=dt,
-                p0_velocity_px2_s2=(5.0 * fps) ** 2,  # 5 px/frame
-                q_std_px=0.1 * fps,  # Q = diag(1/2 0.1^2 px^2, (0.1 px/frame)^2)
-                r_velocity_px2_s2=(1.0 * fps) ** 2,  # R_v = (1 px/frame)^2
-                evidence=self.params.evidence)
-            return MathiassenTipFilter(x0_px, v0, params)
-        maker = MathiassenPFParams.pf_v if self.use_velocity else MathiassenPFParams.pf
-        params = maker(dt_s=dt, n_particles=self.params.pf_particles)
-        return MathiassenTipParticleFilter(x0_px, v0, params, rng=self.rng)
 
     # tracking ---------------------------------------------------------------------------
 
@@ -443,6 +419,7 @@ class InplaneTracker(Tracker):
         axis = estimate_axis(image, grid, p.axis, tip_along_mm=tip_along,
                              **self._search_range())
         theta_measured = axis.theta_deg
+        angle_before = deepcopy(self._angle_filter)
         if self._angle_filter is not None:
             theta_kf = self._angle_filter.step(axis.theta_deg)  # Algorithm 4, line 16
             axis = axis.rotated(theta_kf, upto_mm=self._tip_along_mm)
@@ -450,73 +427,37 @@ class InplaneTracker(Tracker):
         first = float(axis.rays_mm[0])
         upto = max(self._tip_along_mm, first + p.min_length_mm)
         contrast = feats.shaft_contrast(first, upto)
-        seen = contrast >= p.keep_contrast and self._learned_shaft_seen(feats, first, upto)
+        seen, cover = self._needle_seen(feats, first, upto)
+        seen = seen and contrast >= p.keep_contrast
+        if not seen:  # no needle, no angle measured: the KF on theta keeps its estimate
+            self._angle_filter = angle_before
         self._misses = 0 if seen else self._misses + 1
         if self._misses >= p.lost_after_frames:
             self._clear_track()
             return NeedleEstimate(t=frame.t, status=Status.LOST,
                                   reason=f"no needle seen for {p.lost_after_frames} frames",
-                                  details=InplaneDetails(contrast))
+                                  details=InplaneDetails(contrast, echo_coverage=cover))
         step = self._tip_step(self._tip_positions_mm(feats, tip_map), h, seen, frame)
         self._tip_along_mm = step.along_mm
         if not seen:  # the filters predict through the frame; it reports no needle
             return NeedleEstimate(t=frame.t, status=Status.LOST,
                                   reason="no needle seen on this frame",
-                                  details=InplaneDetails(contrast, coasting=True))
-        return self._estimate(frame, axis, step, h, feats, contrast, tip_map, theta_measured)
+                                  details=InplaneDetails(contrast, coasting=True,
+                                                         echo_coverage=cover))
+        return self._estimate(frame, axis, step, h, feats, contrast, tip_map, theta_measured,
+                              coverage=cover)
 
-    def _learned_shaft_seen(self, feats, x_from_mm: float, x_to_mm: float) -> bool:
-        """For a learned source, whether its shaft probability along the axis reaches
-        ``learned_level`` on average (always True for classical features)."""
-        if self.features.kind != "learned":
-            return True
-        sel = (feats.x_mm >= x_from_mm) & (feats.x_mm <= x_to_mm)
-        return bool(sel.any()) and float(feats.line[sel].mean()) >= self.params.learned_level
-
-    def _tip_step(self, x_mm: np.ndarray, h: np.ndarray, seen: bool, frame: Frame) -> _TipStep:
-        """The tip along the axis (mm) and its variance for this frame, from h(x) at tip
-        positions ``x_mm``."""
-        x_px = _mm_to_px(x_mm)
-        velocity = self._velocity_px_s(frame)
-        note = "the frame carries no insertion speed; image only" if \
-            self.use_velocity and velocity is None else None
-        if self.filter_kind is None or self._tip_filter is None:  # OM: the maximum of h(x)
-            x_tip = float(x_mm[int(np.argmax(h))]) if seen else self._tip_along_mm
-            if self.filter_kind is not None and seen:
-                self._two_point_start(x_tip, float(frame.t))
-            return _TipStep(x_tip, None, note)
-        if self.filter_kind == "kf":
-            if seen:
-                M = max(1, int(round(self.params.axis.candidate_radius_mm /
-                                     float(x_mm[1] - x_mm[0]))))
-                idx = tip_candidates(h, M)  # eq. (12)
-                scores = h[idx] - h.min()  # P(j_i) of eq. (16) needs h >= 0
-                if not scores.sum() > 0:
-                    idx, scores = idx[:0], scores[:0]
-            else:
-                idx, scores = np.zeros(0, int), np.zeros(0)
-            est = self._tip_filter.step(x_px[idx], scores, velocity)  # Algorithm 4
-            measured = float(est.measurement_px * PAPER_PX_MM) if est.accepted else None
-            return _TipStep(est.position_px * PAPER_PX_MM, float(est.P[0, 0]), note,
-                            int(idx.size), bool(est.accepted),
-                            est.velocity_px_s * PAPER_PX_MM, measured)
-        h_used = h if seen else np.zeros_like(h)  # a frame without the needle: flat h_pdf
-        est = self._tip_filter.step(h_used, x_px, velocity, rng=self.rng)  # Algorithm 5
-        return _TipStep(est.position_px * PAPER_PX_MM, float(est.covariance[0, 0]), note,
-                        accepted=bool(est.updated),
-                        velocity_mm_s=est.velocity_px_s * PAPER_PX_MM)
-
-    def _two_point_start(self, x_tip_mm: float, t: float) -> None:
-        """Start the tip filter at this measurement with the velocity of the last two."""
-        v = 0.0
-        if self._first_fix is not None:
-            x0, t0 = self._first_fix
-            v = (x_tip_mm - x0) / (t - t0 if t > t0 else self.dt_s)
-            if abs(v) > self.params.max_start_speed_mm_s:  # an outlier, not a needle speed
-                v = 0.0
-        self._tip_filter = self._make_tip_filter(float(_mm_to_px(x_tip_mm)),
-                                                 float(_mm_to_px(v)))
-        self._first_fix = None
+    def _needle_seen(self, feats, x_from_mm: float, x_to_mm: float
+                     ) -> tuple[bool, float | None]:
+        """Whether the needle's echo shows along the axis in [x_from, x_to] (see
+        :mod:`._inplane_evidence`), and for classical features the share of its sections that
+        show it."""
+        p = self.params
+        if self.features.kind == "learned":
+            return learned_level_reached(feats, x_from_mm, x_to_mm, p.learned_level), None
+        step = float(feats.x_mm[1] - feats.x_mm[0]) if len(feats.x_mm) > 1 else 1.0
+        n = 2 * max(1, int(round(p.axis.ray_half_width_mm / step))) + 1  # 2s+1, eq. (1)
+        return classical_echo_seen(feats, x_from_mm, x_to_mm, n, p.echo_z, p.echo_coverage)
 
     # DF ---------------------------------------------------------------------------------
 
@@ -526,7 +467,7 @@ class InplaneTracker(Tracker):
         centre = self.expected_angle_deg if self.expected_angle_deg is not None else \
             self._theta_ref
         res = ding_fenster(image, grid, centre, p.df)
-        contrast = 0.0
+        contrast, seen, cover = 0.0, False, None
         if res:
             anchor = roi_anchor_mm(grid, p.axis)
             vn, vp = axis_vectors(res.theta_deg)
@@ -537,16 +478,19 @@ class InplaneTracker(Tracker):
             feats, h = self._measure(image, previous, tip_map, grid, axis)
             first = float((res.entry_mm - anchor) @ vn)
             contrast = feats.shaft_contrast(max(first, axis.rays_mm[0]), x_tip)
+            # the echo is judged from the ROI's corner, where the needle enters, to the tip
+            seen, cover = self._needle_seen(feats, float(axis.rays_mm[0]), x_tip)
         need = p.detect_contrast if detecting else p.keep_contrast
-        found = bool(res) and contrast >= need
+        found = bool(res) and contrast >= need and seen
         self._misses = 0 if found else self._misses + 1
         if not found:
-            reason = res.reason or f"shaft contrast {contrast:.2f} below {need}"
+            reason = res.reason or (f"shaft contrast {contrast:.2f} below {need}" if
+                                    contrast < need else "no needle echo along the axis")
             status = self.status if detecting else Status.LOST
             if not detecting and self._misses >= p.lost_after_frames:
                 self._clear_track()
             return NeedleEstimate(t=frame.t, status=status, reason=reason,
-                                  details=InplaneDetails(contrast))
+                                  details=InplaneDetails(contrast, echo_coverage=cover))
         if detecting:
             self._clear_track()
             self._theta_ref = res.theta_deg
@@ -558,7 +502,8 @@ class InplaneTracker(Tracker):
                                         1.0 / 12.0 * (grid.spacing_mm[0] ** 2),
                                         self.params.angle.r_theta_deg2, x_tip - first),
             axis_point_mm=np.asarray(res.entry_mm, float),
-            details=InplaneDetails(contrast, theta_deg=res.theta_deg, hough_votes=res.votes))
+            details=InplaneDetails(contrast, theta_deg=res.theta_deg, hough_votes=res.votes,
+                                   echo_coverage=cover))
         return est
 
     # output -----------------------------------------------------------------------------
@@ -572,8 +517,9 @@ class InplaneTracker(Tracker):
         var_p = var_p_mm2 + np.deg2rad(np.sqrt(var_theta_deg2)) ** 2 * max(length_mm, 0.0) ** 2
         return var_n * np.outer(vn, vn) + var_p * np.outer(vp, vp)
 
-    def _estimate(self, frame, axis: AxisEstimate, step: _TipStep, h, feats, contrast: float,
-                  tip_map, theta_measured_deg: float, detected: bool = False) -> NeedleEstimate:
+    def _estimate(self, frame, axis: AxisEstimate, step: TipStep, h, feats, contrast: float,
+                  tip_map, theta_measured_deg: float, detected: bool = False,
+                  coverage: float | None = None) -> NeedleEstimate:
         offset = self._offset_mm(tip_map)
         x_tip, var_px2 = step.along_mm, step.var_px2
         tip = axis.point_mm(x_tip, offset)
@@ -596,4 +542,5 @@ class InplaneTracker(Tracker):
                 h_max=axis.h_max, n_rays=int(len(axis.rays_mm)),
                 tip_at_image_edge=bool(at_end), detected=detected, velocity=step.velocity,
                 candidates=step.candidates, measurement_accepted=step.accepted,
-                tip_velocity_mm_s=step.velocity_mm_s, tip_measurement_mm=step.measurement_mm))
+                tip_velocity_mm_s=step.velocity_mm_s, tip_measurement_mm=step.measurement_mm,
+                echo_coverage=coverage))
