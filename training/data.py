@@ -31,12 +31,12 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset
 
 import synth
-from needlenet.features._learned import wall_offsets
-from needlenet.features._resample import (
+from needlenet.features import (
     NORMALIZATIONS,
     frame_statistics,
     normalize,
     to_model_grid,
+    wall_offsets,
 )
 
 from .networks import INPUT_MULTIPLE, OUTPUT_STRIDE

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from needlenet.features._resample import NORMALIZATIONS
+from needlenet.features import NORMALIZATIONS
 
 from .networks import INPUT_MULTIPLE, OUTPUT_STRIDE, build_network
 

@@ -30,9 +30,14 @@ import numpy as np
 import synth
 
 from ..eval._auc import roc_auc
-from ..features import Frame
-from ..features._base import FeatureSource, Likelihood
-from ..features._learned import LearnedFeatures, shipped_model_path, wall_offsets
+from ..features import (
+    FeatureSource,
+    Frame,
+    LearnedFeatures,
+    Likelihood,
+    shipped_model_path,
+    wall_offsets,
+)
 from ..trackers.volume import VolumeTracker
 
 HELD_OUT_SEED = 20_000_000

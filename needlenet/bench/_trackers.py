@@ -19,7 +19,7 @@ import numpy as np
 import synth
 
 from ..eval import evaluate
-from ..features._learned import ModelError
+from ..features import ModelError
 from ..trackers._axial import AxialParams
 from ..trackers._inplane_line import LineTrackerParams
 from ..trackers._registry import make_tracker
@@ -45,7 +45,7 @@ CARRIERE_TABLE_I = {60: (0.497, 0.38, 105.0, 15.1), 80: (0.125, 0.02, 18.4, 5.0)
 def _feature_kinds(modality: str, log) -> list[str]:
     kinds = ["classical"]
     try:
-        from ..features._learned import shipped_model_path
+        from ..features import shipped_model_path
 
         shipped_model_path(modality)
         kinds.append("learned")

@@ -217,7 +217,7 @@ def _make_tracker(args, params):
 def _check_model_grid(tracker, seq) -> None:
     """A learned model's grid fits the recording's frames (see
     :meth:`~needlenet.features.LearnedFeatures.check_frame_size`), checked before tracking."""
-    from ..features._learned import LearnedFeatures, ModelError
+    from ..features import LearnedFeatures, ModelError
 
     features = getattr(tracker, "features", None)
     if isinstance(features, LearnedFeatures):

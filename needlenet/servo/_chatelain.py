@@ -235,7 +235,7 @@ def run_chatelain(run: str = "misalignment", features: str = "classical", seed: 
         fault = fault.at(int(0.5 * t_ins / dt))
     start = None if fault is None else fault.start
 
-    from ..features._base import Frame
+    from ..features import Frame
 
     out = {k: np.full((n, 3), np.nan) for k in ("s_true", "s_hat", "tip_true", "tip_hat",
                                                 "probe", "tip_world", "v_c")}

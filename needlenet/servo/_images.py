@@ -311,7 +311,7 @@ class CrossSectionDetector:
     def _peak(self, image: np.ndarray, grid):
         """(score, peak value, (row, col), F, S) of the smoothed shaft map, or None when the
         frame cannot be measured (e.g. constant)."""
-        from ..features._base import Frame, FrameError, check_frame
+        from ..features import Frame, FrameError, check_frame
 
         frame = Frame(image, grid)
         try:
@@ -369,7 +369,7 @@ def make_detector(features: str, model=None, radius_mm: float = 0.635, threads: 
         return CrossSectionDetector(learned_features("axial", model, threads=threads),
                                     radius_mm, echo_threshold=echo_threshold)
     if features == "classical":
-        from ..features._variance import VarianceFeatures
+        from ..features import VarianceFeatures
 
         return CrossSectionDetector(VarianceFeatures(), radius_mm,
                                     echo_threshold=echo_threshold)

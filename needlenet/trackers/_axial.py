@@ -99,7 +99,7 @@ from ..backends import (
     match_template_roi,
     variance_image,
 )
-from ..features._base import FeatureSource, Frame
+from ..features import FeatureSource, Frame
 from ._base import NeedleEstimate, Status, Tracker
 from ._cross_section import below_top_edge, bilinear, odd_px, peak_covariance, subpixel_peak
 from ._details import AxialDetails, AxialModel
@@ -278,7 +278,7 @@ class AxialTracker(Tracker):
 
     @classmethod
     def default_features(cls) -> FeatureSource:
-        from ..features._variance import VarianceFeatures
+        from ..features import VarianceFeatures
 
         return VarianceFeatures()
 

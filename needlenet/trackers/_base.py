@@ -10,7 +10,7 @@ from enum import Enum
 
 import numpy as np
 
-from ..features._base import FeatureSource, Frame, FrameError, check_frame
+from ..features import FeatureSource, Frame, FrameError, check_frame
 from ._details import EstimateDetails
 
 __all__ = ["Status", "NeedleEstimate", "Tracker", "RngLike", "frames_from_sequence"]
@@ -94,7 +94,7 @@ class Tracker(ABC):
 
     @classmethod
     def default_features(cls) -> FeatureSource:
-        from ..features._base import IntensityFeatures
+        from ..features import IntensityFeatures
 
         return IntensityFeatures()
 

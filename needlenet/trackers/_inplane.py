@@ -62,7 +62,7 @@ from ..backends import (
     MathiassenAngleParams,
     MathiassenTipParams,
 )
-from ..features._base import FeatureSource, Frame
+from ..features import FeatureSource, Frame
 from ..features._hough import DFParams, ding_fenster
 from ..features._mathiassen import (
     PAPER_PX_MM,

@@ -18,7 +18,7 @@ from ..backends import (
     MathiassenTipParticleFilter,
     tip_candidates,
 )
-from ..features._base import Frame
+from ..features import Frame
 from ..features._mathiassen import PAPER_PX_MM
 
 __all__ = ["TipStep", "TipFiltering", "mm_to_px"]

@@ -164,7 +164,7 @@ def test_models_bench_reports_the_volume_trackers_tip():
     """The ransac tracker's one-volume tip with the shipped model, on held-out volumes at CR
     5.0 (a full run: 40 of 40 frames within 1 mm, median 0.18 mm), next to the tip map's."""
     from needlenet.bench._models import evaluate_model
-    from needlenet.features._learned import LearnedFeatures, shipped_model_path
+    from needlenet.features import LearnedFeatures, shipped_model_path
 
     src = LearnedFeatures(shipped_model_path("volume"), "volume", threads=1)
     r = evaluate_model("volume", src, 1, 3, cr=5.0, log=lambda *a: None)

@@ -10,8 +10,7 @@ import pytest
 import synth
 from needlenet.backends._bicycle import bicycle_path
 from needlenet.eval._axial_metrics import axial_errors
-from needlenet.features._base import FeatureSource, Frame, Likelihood
-from needlenet.features._variance import VarianceFeatures
+from needlenet.features import FeatureSource, Frame, Likelihood, VarianceFeatures
 from needlenet.trackers._axial import AxialParams, AxialTracker, map_fit_bicycle
 from needlenet.trackers._base import Status, frames_from_sequence
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import synth
-from needlenet.features._base import FeatureSource, Frame, Likelihood
+from needlenet.features import FeatureSource, Frame, Likelihood
 from needlenet.trackers._base import Status
 from needlenet.trackers._inplane import InplaneParams, InplaneTracker
 

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 import synth
-from needlenet.features import line_contrast
-from needlenet.features._base import Frame
+from needlenet.features import Frame, line_contrast
 from needlenet.trackers._base import Status
 from needlenet.trackers._inplane_line import LineTracker, LineTrackerParams
 
@@ -173,7 +172,7 @@ class _MapSource:
         self.shaft = shaft
 
     def likelihood(self, frame, roi=None):
-        from needlenet.features._base import Likelihood
+        from needlenet.features import Likelihood
 
         return Likelihood(shaft=self.shaft, tip=None, source=self.name)
 

@@ -12,7 +12,7 @@ import pytest
 
 import synth
 from needlenet.eval._volume_metrics import evaluate_volume
-from needlenet.features._base import FeatureSource, Frame, Likelihood
+from needlenet.features import FeatureSource, Frame, Likelihood
 from needlenet.trackers._base import Status, frames_from_sequence
 from needlenet.trackers.volume import VolumeTracker, VolumeTrackerParams
 from needlenet.trackers.volume._geometry import Volume

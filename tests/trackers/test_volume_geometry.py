@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from needlenet.features._base import Frame, Likelihood
+from needlenet.features import Frame, Likelihood
 from needlenet.trackers.volume import VolumeTracker, VolumeTrackerParams
 from needlenet.trackers.volume._geometry import (
     Volume,

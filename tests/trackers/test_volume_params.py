@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from needlenet.backends import chatelain_control_points_model, zhao_model
-from needlenet.features._base import Frame
+from needlenet.features import Frame
 from needlenet.trackers import make_tracker, tracker_class, tracker_params
 from needlenet.trackers.volume import (
     ChatelainParams,

@@ -7,9 +7,7 @@ import numpy as np
 import pytest
 
 import synth
-from needlenet.features import FeatureSource, LearnedFeatures, ModelError
-from needlenet.features._base import Frame
-from needlenet.features._learned import shipped_model_path
+from needlenet.features import FeatureSource, Frame, LearnedFeatures, ModelError, shipped_model_path
 from needlenet.trackers._base import Status
 from needlenet.trackers.volume import VolumeTracker
 

@@ -97,7 +97,7 @@ def test_target_grid_is_where_the_resampler_puts_the_pixels():
     # resampling keeps exactly away from the borders): after to_model_grid, each model pixel
     # says where it lies, and the output grid must agree (an output sample is centred on an
     # input pixel pair)
-    from needlenet.features._resample import to_model_grid
+    from needlenet.features import to_model_grid
     from training.data import model_output_grid
 
     g = synth.Grid((37, 29, 23), (0.78, 0.55, 0.37), (5.0, -8.0, -4.0))

@@ -12,7 +12,7 @@ from typing import ClassVar
 import numpy as np
 
 from ...backends import direction_to_angles, predict, update
-from ...features._base import FeatureSource, Frame
+from ...features import FeatureSource, Frame
 from .._base import NeedleEstimate, Status, Tracker
 from .._details import VolumeDetails
 from ._geometry import Volume, cylinder

@@ -14,7 +14,7 @@ import math
 import numpy as np
 from scipy import ndimage
 
-from ...features._base import FeatureSource, Frame, Likelihood
+from ...features import FeatureSource, Frame, Likelihood
 
 __all__ = ["RING_MIN_SAMPLES", "Volume", "ball", "boundary_distance", "cross_section",
            "cylinder", "first_run_out", "perpendiculars", "profile", "ring_section",

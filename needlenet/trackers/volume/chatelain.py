@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...backends import InsertionDetector, InsertionParams, chatelain_control_points_model
-from ...features._base import Frame
+from ...features import Frame
 from .._base import NeedleEstimate, Status
 from ._base import StateFilter, VolumeTracker
 from ._geometry import Volume, ball, boundary_distance, cylinder, run_out_distance, voxel_count

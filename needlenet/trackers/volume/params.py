@@ -17,7 +17,7 @@ from typing import ClassVar
 import numpy as np
 
 from ...backends import InsertionParams
-from ...features._frangi import FrangiParams
+from ...features import FrangiParams
 
 __all__ = ["ChatelainParams", "LearnedPlacementParams", "MeasurementParams", "RoiRkParams",
            "VolumeTrackerParams"]

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...features._base import Frame
+from ...features import Frame
 from .._base import NeedleEstimate, Status
 from ._base import VolumeTracker
 from ._geometry import Volume

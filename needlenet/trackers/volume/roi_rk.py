@@ -20,8 +20,7 @@ import math
 import numpy as np
 
 from ...backends import angles_to_direction, ransac, tip_velocity, zhao_model
-from ...features._base import Frame
-from ...features._frangi import FrangiFeatures
+from ...features import Frame, FrangiFeatures
 from .._base import NeedleEstimate, Status
 from ._base import StateFilter, VolumeTracker, angles, wrap
 from ._geometry import Volume, cylinder
