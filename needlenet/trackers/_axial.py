@@ -91,7 +91,6 @@ import numpy as np
 from synth import invert_rigid
 
 from ..backends import (
-    CarriereParams,
     CarriereParticleFilter,
     RngLike,
     UpdateOutcome,
@@ -100,72 +99,12 @@ from ..backends import (
     variance_image,
 )
 from ..features import FeatureSource, Frame
+from ._axial_params import AxialParams
 from ._base import NeedleEstimate, Status, Tracker
 from ._cross_section import below_top_edge, bilinear, odd_px, peak_covariance, subpixel_peak
 from ._details import AxialDetails, AxialModel
 
 __all__ = ["AxialParams", "AxialTracker", "map_fit_bicycle"]
-
-
-@dataclass(frozen=True)
-class AxialParams:
-    """Parameters of :class:`AxialTracker`; mm, degrees. See the module docstring."""
-
-    template_mm: float = 3.0  # h = w of the template patch (rounded to an odd pixel count)
-    warmup_depth_mm: float = 10.0  # ROI on the previous centre, no filter update before
-    rotation_depth_mm: float | None = None  # D (60 or 80 mm in the paper): the filter stops
-    # there and the predicted needle turns there; None: the filter never stops
-    bevel_turn: bool = True  # False: stop at D without a turn (the paper's clinical data)
-    final_depth_mm: float = 100.0  # the predicted shape runs to this depth
-    shape_step_mm: float = 1.0  # sampling of the predicted shape
-    step_mm: float = 0.5  # depth per frame when frames carry no probe pose
-    insertion_sign: int | None = None  # +1/-1 along the elevation axis; None: from the motion
-    needle_radius_mm: float = 0.635  # 18 G; the detector's Gaussian sigma
-    detect_score: float = 15.0  # robust score (max - median) / MAD of the smoothed feature
-    lost_score: float = 8.0  # below this at the matched centre the cross-section vanished
-    score_floor: float = 1e-3  # least MAD (feature units): a clean map has none
-    min_peak: float | None = None  # least smoothed feature to detect; None: 0.3 for
-    # learned sources (a probability has an absolute scale), 0 for classical ones
-    ncc_min: float = 0.6  # an NCC peak below this is an outlier
-    max_jump_mm: float = 1.0  # largest jump from the last accepted centre
-    max_slope: float = 0.2  # |du/dv| allowed on top of max_jump_mm per mm of depth
-    max_coast_frames: int = 2  # rejected frames in a row reported at the prediction
-    drift_correction: bool = True  # False: the paper's plain update of the template
-    drift_tolerance_mm: float = 0.6  # largest correction by the first template
-    detect_anchor: str = "auto"  # "top_edge", "peak"; "auto": peak for learned sources
-    # learned sources with learned_template = "map": move the NCC match to the likelihood's
-    # sub-pixel maximum within one radius (a probability map says where the cross-section
-    # is; its smooth blob makes the NCC peak wander by a tenth of a millimetre from slice
-    # to slice, which the bicycle fit then extrapolates)
-    learned_peak_refine: bool = True
-    # learned sources: what the NCC templates are cut from. "variance": Carriere's variance
-    # image (eq. 1) weighted by the likelihood: the map keeps the needle's cross-section and
-    # drops the bright tissue that can capture a template, the variance image's speckle locks
-    # the match from slice to slice as it does for the classical source. "texture": the
-    # B-mode image weighted by the likelihood; "map": the likelihood itself (then moved to
-    # its peak, learned_peak_refine). Measured on `needlenet bench axial`'s sequences (8 per
-    # D; mean tip prediction error, D = 60/80 mm): "paper" filter 0.32/0.23 mm with
-    # "variance", 0.38/0.24 with "texture"; "lsq" 0.050/0.005 vs 0.060/0.035.
-    learned_template: str = "variance"
-    filter_update: str = "paper"  # "paper" (steps 1-10) or "lsq" (+ MAP least squares)
-    measurement_sd_mm: float = 0.1  # "lsq": sd of a centre, for the least-squares fit
-    pf: CarriereParams = field(default_factory=CarriereParams)  # n, p, c, priors, gamma
-
-    def __post_init__(self) -> None:
-        if self.filter_update not in ("paper", "lsq"):
-            raise ValueError(f"filter_update must be 'paper' or 'lsq', got {self.filter_update!r}")
-        if self.learned_template not in ("variance", "texture", "map"):
-            raise ValueError(f"learned_template must be 'variance', 'texture' or 'map', got "
-                             f"{self.learned_template!r}")
-        if self.detect_anchor not in ("auto", "top_edge", "peak"):
-            raise ValueError(f"detect_anchor must be 'auto', 'top_edge' or 'peak', got "
-                             f"{self.detect_anchor!r}")
-        if self.insertion_sign not in (None, 1, -1):
-            raise ValueError(f"insertion_sign must be None, 1 or -1, got {self.insertion_sign}")
-        for name in ("template_mm", "step_mm", "needle_radius_mm", "shape_step_mm",
-                     "max_jump_mm", "measurement_sd_mm"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
 
 
 def map_fit_bicycle(v, u, prior_theta0_deg=(0.0, 5.0), prior_radius_mm=(1500.0, 600.0),
