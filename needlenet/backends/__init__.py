@@ -89,24 +89,26 @@ from ._particle import (
     systematic_resample,
 )
 from ._ransac import RansacResult, adaptive_trial_count, ransac
-from ._ransac_models import LineModel, PolyCurveModel
+from ._ransac_checks import Check, max_curvature, min_sample_distance, within_angle
+from ._ransac_models import LineModel, PolyCurveModel, RansacModel
 
 __all__ = [
-    "AdaptiveNoise", "AxisTip", "CarriereParams", "CarriereParticleFilter", "Detection",
-    "EKFModel", "EKFUpdate", "ExtendedKalmanFilter", "InsertionDetector", "InsertionParams",
-    "KalmanFilter", "LineModel", "LineSearchParams", "LinearModel", "MathiassenAngleFilter",
-    "MathiassenAngleParams", "MathiassenPFParams", "MathiassenTipFilter", "MathiassenTipParams",
-    "MathiassenTipParticleFilter", "NeedleLine", "ParticleFilter", "PolyCurveModel",
-    "RansacResult", "RngLike", "SpeckleMatch", "TemplateMatch", "TipVelocity", "UpdateOutcome",
-    "UpdateResult", "WorkingMap", "YeEKFParams", "YeModel", "adaptive_trial_count",
-    "angles_to_direction",
+    "AdaptiveNoise", "AxisTip", "CarriereParams", "CarriereParticleFilter", "Check",
+    "Detection", "EKFModel", "EKFUpdate", "ExtendedKalmanFilter", "InsertionDetector",
+    "InsertionParams", "KalmanFilter", "LineModel", "LineSearchParams", "LinearModel",
+    "MathiassenAngleFilter", "MathiassenAngleParams", "MathiassenPFParams",
+    "MathiassenTipFilter", "MathiassenTipParams", "MathiassenTipParticleFilter", "NeedleLine",
+    "ParticleFilter", "PolyCurveModel", "RansacModel", "RansacResult", "RngLike",
+    "SpeckleMatch", "TemplateMatch", "TipVelocity", "UpdateOutcome", "UpdateResult",
+    "WorkingMap", "YeEKFParams", "YeModel", "adaptive_trial_count", "angles_to_direction",
     "bicycle_path", "bicycle_step", "candidate_posterior", "candidate_set",
     "chatelain_control_points_model", "chi2_gate", "curvature_radius", "detect_insertion",
     "direction_to_angles", "effective_sample_size", "find_needle_line", "fit_plane_angle_pca",
-    "geometric_median", "h_pdf", "heading_increment", "hough_peaks", "line_segment", "mahalanobis",
-    "match_template_roi", "multinomial_resample", "predict", "ransac", "refine_line",
-    "residual_resample", "sample_along_axis", "shape_error", "speckle_track_3d",
-    "stratified_resample", "systematic_resample", "tip_along_axis", "tip_candidates", "tip_error",
-    "tip_velocity", "update", "uv_to_xyz", "variance_image", "working_map", "xyz_to_uv",
+    "geometric_median", "h_pdf", "heading_increment", "hough_peaks", "line_segment",
+    "mahalanobis", "match_template_roi", "max_curvature", "min_sample_distance",
+    "multinomial_resample", "predict", "ransac", "refine_line", "residual_resample",
+    "sample_along_axis", "shape_error", "speckle_track_3d", "stratified_resample",
+    "systematic_resample", "tip_along_axis", "tip_candidates", "tip_error", "tip_velocity",
+    "update", "uv_to_xyz", "variance_image", "within_angle", "working_map", "xyz_to_uv",
     "ye_prv_model", "ye_pv_model", "zhao_model",
 ]

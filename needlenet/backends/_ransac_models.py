@@ -4,24 +4,28 @@
 * :class:`PolyCurveModel`: the polynomial curve of Chatelain 2013 eq. (16), scored with the
   approximate point-to-curve distance of eq. (18).
 
-Model classes hold a *batch* of models: every parameter array has leading batch axes
-(``origin`` has shape ``(..., D)``), so ``residuals(points)`` returns ``(..., N)``: ``(B, N)``
-for the ``B`` hypotheses of a batch and ``(N,)`` for the single model that
-:func:`~._ransac.ransac` returns. ``model[i]`` selects hypotheses. Each class has the
-estimators the RANSAC loop needs: from minimal samples in a batch, and by (weighted) least
-squares on inliers.
+Both implement :class:`RansacModel`, the protocol the loop of :func:`~._ransac.ransac` relies
+on: the size of a minimal sample, a batched estimate from minimal samples, residuals, a
+validity mask, a least-squares refinement on inliers and an orientation along a reference
+direction. Model classes hold a *batch* of models: every parameter array has leading batch
+axes (``origin`` has shape ``(..., D)``), so ``residuals(points)`` returns ``(..., N)``:
+``(B, N)`` for the ``B`` hypotheses of a batch and ``(N,)`` for the single model that
+:func:`~._ransac.ransac` returns. ``model[i]`` selects hypotheses; the batch plumbing
+(indexing, length, shapes, finiteness, the coordinate along the principal direction) lives
+once in :class:`_BatchedModel`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Protocol
 
 import numpy as np
 
 from ._fit_checks import _as_points, _as_weights, _check_int
 
-__all__ = ["LineModel", "PolyCurveModel"]
+__all__ = ["LineModel", "PolyCurveModel", "RansacModel"]
 
 # A minimal sample whose curvilinear coordinates are closer than this fraction of their spread
 # gives a singular Vandermonde system (Chatelain eq. (16)) and is treated as degenerate.
@@ -45,8 +49,84 @@ def _weighted_principal_direction(points: np.ndarray, weights: np.ndarray):
     return mean, vectors[..., :, -1]
 
 
+class RansacModel(Protocol):
+    """What :func:`~._ransac.ransac` needs of a model class; instances are batches of models.
+
+    ``sample_size(order)`` is the size m of a minimal sample; ``from_samples`` fits a batch of
+    B models to (B, m, D) minimal samples at once; ``residuals`` gives the (B, N) distances of
+    N points; ``is_valid`` masks degenerate fits; ``refine`` refits one model to its inliers
+    by weighted least squares; ``oriented`` flips the principal direction towards a reference;
+    ``model[i]`` selects hypotheses.
+    """
+
+    @classmethod
+    def sample_size(cls, order: int) -> int: ...
+
+    @classmethod
+    def from_samples(cls, samples) -> RansacModel: ...
+
+    @property
+    def ndim(self) -> int: ...
+
+    @property
+    def principal_direction(self) -> np.ndarray: ...
+
+    def __getitem__(self, index) -> RansacModel: ...
+
+    def is_valid(self) -> np.ndarray: ...
+
+    def residuals(self, points) -> np.ndarray: ...
+
+    def refine(self, points, weights) -> RansacModel: ...
+
+    def oriented(self, reference) -> RansacModel: ...
+
+
+class _BatchedModel:
+    """Batch plumbing shared by the models: every dataclass field has leading batch axes.
+
+    Subclasses are frozen dataclasses with an ``origin`` field of shape (..., D), define
+    :attr:`principal_direction`, and list in ``_finite_fields`` the fields (with the number
+    of their trailing, non-batch axes) that must be finite for a model to be valid.
+    """
+
+    _finite_fields: ClassVar[tuple[tuple[str, int], ...]] = ()
+
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return self.origin.shape[:-1]
+
+    @property
+    def ndim(self) -> int:
+        """Dimension D of the space."""
+        return self.origin.shape[-1]
+
+    def __getitem__(self, index):
+        if not self.batch_shape:
+            raise IndexError(f"cannot index a single (unbatched) {type(self).__name__}")
+        return type(self)(*(getattr(self, f.name)[index] for f in dataclasses.fields(self)))
+
+    def __len__(self) -> int:
+        if not self.batch_shape:
+            raise TypeError(f"a single (unbatched) {type(self).__name__} has no len()")
+        return self.batch_shape[0]
+
+    def is_valid(self) -> np.ndarray:
+        """True where the parameters are finite (False for degenerate samples), shape (...)."""
+        ok = np.ones(self.batch_shape, dtype=bool)
+        for name, core in self._finite_fields:
+            ok = ok & np.isfinite(getattr(self, name)).all(axis=tuple(range(-core, 0)))
+        return ok
+
+    def parameter(self, points) -> np.ndarray:
+        """Coordinate of the orthogonal projection of (N, D) points on the principal
+        direction, measured from :attr:`origin`: shape (..., N)."""
+        d = np.asarray(points, dtype=float) - self.origin[..., None, :]
+        return np.einsum("...nd,...d->...n", d, self.principal_direction)
+
+
 @dataclass(frozen=True, eq=False)
-class LineModel:
+class LineModel(_BatchedModel):
     """Batch of lines ``x = origin + t * direction`` (Zhao 2013, eq. (B2)).
 
     Parameters
@@ -61,7 +141,7 @@ class LineModel:
     origin: np.ndarray
     direction: np.ndarray
 
-    min_samples: ClassVar[int] = 2
+    _finite_fields: ClassVar[tuple[tuple[str, int], ...]] = (("origin", 1), ("direction", 1))
 
     def __post_init__(self):
         origin = np.asarray(self.origin, dtype=float)
@@ -77,6 +157,11 @@ class LineModel:
         object.__setattr__(self, "direction", direction)
 
     # -- estimation ------------------------------------------------------------------------
+
+    @classmethod
+    def sample_size(cls, order: int = 2) -> int:
+        """Two points define a line; ``order`` is ignored."""
+        return 2
 
     @classmethod
     def from_samples(cls, samples) -> LineModel:
@@ -109,40 +194,16 @@ class LineModel:
         mean, direction = _weighted_principal_direction(pts, w)
         return cls(mean, direction)
 
+    def refine(self, points, weights=None) -> LineModel:
+        """The least-squares line through (N, D) inliers (:meth:`from_inliers`)."""
+        return type(self).from_inliers(points, weights)
+
     # -- geometry --------------------------------------------------------------------------
-
-    @property
-    def batch_shape(self) -> tuple[int, ...]:
-        return self.origin.shape[:-1]
-
-    @property
-    def ndim(self) -> int:
-        """Dimension D of the space."""
-        return self.origin.shape[-1]
 
     @property
     def principal_direction(self) -> np.ndarray:
         """The unit direction k0 (Chatelain 2013, eq. (22)), shape (..., D)."""
         return self.direction
-
-    def __getitem__(self, index) -> LineModel:
-        if not self.batch_shape:
-            raise IndexError("cannot index a single (unbatched) LineModel")
-        return LineModel(self.origin[index], self.direction[index])
-
-    def __len__(self) -> int:
-        if not self.batch_shape:
-            raise TypeError("a single (unbatched) LineModel has no len()")
-        return self.batch_shape[0]
-
-    def is_valid(self) -> np.ndarray:
-        """True where the parameters are finite (False for degenerate samples), shape (...)."""
-        return np.isfinite(self.origin).all(-1) & np.isfinite(self.direction).all(-1)
-
-    def parameter(self, points) -> np.ndarray:
-        """Coordinate ``t`` of the orthogonal projection of (N, D) points, shape (..., N)."""
-        d = np.asarray(points, dtype=float) - self.origin[..., None, :]
-        return np.einsum("...nd,...d->...n", d, self.direction)
 
     def points_at(self, t) -> np.ndarray:
         """Points ``origin + t * direction`` for t of shape (K,) or (..., K): shape (..., K, D)."""
@@ -177,7 +238,7 @@ def _poly_eval(coefficients: np.ndarray, a: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class PolyCurveModel:
+class PolyCurveModel(_BatchedModel):
     """Batch of polynomial curves ``C(a, H) = H [1 a ... a^(n-1)]^T`` (Chatelain 2013, eq. (16)).
 
     The curvilinear coordinate of a point ``v`` is approximated by its projection on the
@@ -204,6 +265,9 @@ class PolyCurveModel:
     axis: np.ndarray
     span: np.ndarray
 
+    _finite_fields: ClassVar[tuple[tuple[str, int], ...]] = (
+        ("coefficients", 2), ("origin", 1), ("axis", 1))
+
     def __post_init__(self):
         h = np.asarray(self.coefficients, dtype=float)
         origin = np.asarray(self.origin, dtype=float)
@@ -227,6 +291,11 @@ class PolyCurveModel:
         object.__setattr__(self, "span", span)
 
     # -- estimation ------------------------------------------------------------------------
+
+    @classmethod
+    def sample_size(cls, order: int = 3) -> int:
+        """A curve of ``order`` control points (Chatelain eq. (16)) needs ``order`` points."""
+        return _check_int(order, "order", 2)
 
     @classmethod
     def from_samples(cls, samples) -> PolyCurveModel:
@@ -286,16 +355,12 @@ class PolyCurveModel:
         span = np.array([a[positive].min(), a[positive].max()])
         return cls(h.T, p1, k0, span)
 
+    def refine(self, points, weights=None) -> PolyCurveModel:
+        """The least-squares curve of the same order through (N, D) inliers
+        (:meth:`from_inliers`)."""
+        return type(self).from_inliers(points, weights, order=self.order)
+
     # -- geometry --------------------------------------------------------------------------
-
-    @property
-    def batch_shape(self) -> tuple[int, ...]:
-        return self.origin.shape[:-1]
-
-    @property
-    def ndim(self) -> int:
-        """Dimension D of the space."""
-        return self.origin.shape[-1]
 
     @property
     def order(self) -> int:
@@ -306,31 +371,6 @@ class PolyCurveModel:
     def principal_direction(self) -> np.ndarray:
         """The unit principal direction k0 (Chatelain 2013, eqs. (18) and (22)), shape (..., D)."""
         return self.axis
-
-    def __getitem__(self, index) -> PolyCurveModel:
-        if not self.batch_shape:
-            raise IndexError("cannot index a single (unbatched) PolyCurveModel")
-        return PolyCurveModel(
-            self.coefficients[index], self.origin[index], self.axis[index], self.span[index]
-        )
-
-    def __len__(self) -> int:
-        if not self.batch_shape:
-            raise TypeError("a single (unbatched) PolyCurveModel has no len()")
-        return self.batch_shape[0]
-
-    def is_valid(self) -> np.ndarray:
-        """True where all parameters are finite (False for degenerate samples), shape (...)."""
-        return (
-            np.isfinite(self.coefficients).all(axis=(-1, -2))
-            & np.isfinite(self.origin).all(-1)
-            & np.isfinite(self.axis).all(-1)
-        )
-
-    def parameter(self, points) -> np.ndarray:
-        """Approximate curvilinear coordinate ``a_hat`` of (N, D) points (eq. (18)): (..., N)."""
-        d = np.asarray(points, dtype=float) - self.origin[..., None, :]
-        return np.einsum("...nd,...d->...n", d, self.axis)
 
     def points_at(self, a) -> np.ndarray:
         """Curve points ``C(a, H)`` (eq. (16)) for a of shape (K,) or (..., K): (..., K, D)."""

@@ -13,9 +13,12 @@ from needlenet.backends import (
     PolyCurveModel,
     RansacResult,
     adaptive_trial_count,
+    max_curvature,
+    min_sample_distance,
     ransac,
     sample_along_axis,
     tip_along_axis,
+    within_angle,
 )
 from needlenet.backends._ransac import _draw_samples
 
@@ -235,8 +238,8 @@ def test_angle_constraint_rejects_decoy():
         result = ransac(
             points,
             residual_threshold=0.3,
+            is_model_valid=within_angle(predicted, 10.0),
             predicted_direction=predicted,
-            max_angle_deg=10.0,
             rng=3,
         )
         assert result.inliers[:60].sum() >= 58 and result.inliers[60:210].sum() < 5
@@ -275,11 +278,15 @@ def test_min_sample_distance_respected():
     rng = np.random.default_rng(12)
     points = _line_points(rng, [0, 0, 0], [0, 1, 1], 200, 5, 0.01)  # length about 10
     for seed in range(5):
-        result = ransac(points, residual_threshold=0.1, min_sample_distance=6.0, rng=seed)
+        result = ransac(
+            points, residual_threshold=0.1, is_sample_valid=min_sample_distance(6.0), rng=seed
+        )
         assert result
         i, j = result.sample
         assert np.linalg.norm(points[i] - points[j]) >= 6.0
-    impossible = ransac(points, residual_threshold=0.1, min_sample_distance=50.0, rng=0)
+    impossible = ransac(
+        points, residual_threshold=0.1, is_sample_valid=min_sample_distance(50.0), rng=0
+    )
     assert not impossible
     assert "no hypothesis passed the constraints" in impossible.reason
     assert impossible.model is None and not impossible.inliers.any()
@@ -314,7 +321,9 @@ def test_curvature_constraint_rejects_tight_arc():
     points = np.vstack([arc, straight]) + rng.normal(0, 0.03, (280, 3))
     free = ransac(points, "curve", residual_threshold=0.3, rng=5)
     assert free.inliers[:200].sum() > 190
-    constrained = ransac(points, "curve", residual_threshold=0.3, max_curvature=0.02, rng=5)
+    constrained = ransac(
+        points, "curve", residual_threshold=0.3, is_model_valid=max_curvature(0.02), rng=5
+    )
     assert constrained.inliers[200:].sum() >= 78 and constrained.inliers[:200].sum() < 10
 
 
@@ -349,11 +358,10 @@ def test_failures_are_falsy_with_reason():
         ({"model": "circle"}, "model must be one of"),
         ({"weights": np.ones(3)}, r"weights must have shape \(6,\)"),
         ({"weights": -np.ones(6)}, "non-negative"),
-        ({"min_sample_distance": -1.0}, "min_sample_distance"),
-        ({"max_angle_deg": 10.0}, "requires predicted_direction"),
-        ({"predicted_direction": [1.0, 0.0], "max_angle_deg": 10.0}, "predicted_direction"),
+        ({"is_model_valid": within_angle([1.0, 0.0], 10.0)}, "predicted_direction"),
+        ({"predicted_direction": [1.0, 0.0]}, "predicted_direction"),
         ({"predicted_direction": [0.0, 0.0, 0.0]}, "non-zero"),
-        ({"predicted_direction": [1.0, 0, 0], "max_angle_deg": 120.0}, "max_angle_deg"),
+        ({"is_sample_valid": [min_sample_distance(1.0), 2.0]}, "is_sample_valid"),
         ({"success_probability": 1.0}, "success_probability"),
         ({"max_trials": 0}, "max_trials"),
         ({"batch_size": 2.5}, "batch_size"),
@@ -365,6 +373,36 @@ def test_ransac_bad_input(kwargs, message):
     points = args.pop("points")
     with pytest.raises(ValueError, match=message):
         ransac(points, **args)
+
+
+@pytest.mark.parametrize(
+    ("build", "message"),
+    [
+        (lambda: min_sample_distance(-1.0), "min_sample_distance"),
+        (lambda: max_curvature(np.nan), "max_curvature"),
+        (lambda: within_angle([0.0, 0.0, 0.0], 10.0), "non-zero"),
+        (lambda: within_angle([[1.0, 0.0, 0.0]], 10.0), "predicted_direction"),
+        (lambda: within_angle([1.0, 0, 0], 120.0), "max_angle_deg"),
+    ],
+)
+def test_constraint_bad_input(build, message):
+    with pytest.raises(ValueError, match=message):
+        build()
+
+
+def test_constraints_match_their_definitions():
+    rng = np.random.default_rng(15)
+    samples = rng.normal(size=(200, 3, 3))
+    pairs = samples[:, [0, 0, 1]] - samples[:, [1, 2, 2]]
+    kappa = np.linalg.norm(pairs, axis=-1).min(axis=1)  # Zhao's kappa(N)
+    np.testing.assert_array_equal(min_sample_distance(1.0)(samples), kappa >= 1.0)
+    lines = LineModel.from_samples(samples[:, :2])
+    k = np.array([1.0, 2.0, 2.0])
+    angle = np.degrees(np.arccos(np.abs(lines.direction @ k) / 3.0))
+    np.testing.assert_array_equal(within_angle(-k, 30.0)(lines), angle <= 30.0)
+    curves = PolyCurveModel.from_samples(samples)
+    np.testing.assert_array_equal(max_curvature(0.5)(curves), curves.max_curvature() <= 0.5)
+    assert str(min_sample_distance(2.0)) == "min_sample_distance(2)"
 
 
 def test_model_estimation_bad_input():

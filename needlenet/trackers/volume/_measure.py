@@ -16,7 +16,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...backends import LineModel, PolyCurveModel, RansacResult, ransac, tip_along_axis
+from ...backends import (
+    LineModel,
+    PolyCurveModel,
+    RansacResult,
+    min_sample_distance,
+    ransac,
+    tip_along_axis,
+    within_angle,
+)
 from ._geometry import Volume, profile, run_out_distance
 from ._placement import image_tip, refine_on_image, tip_on_map
 from .params import MeasurementParams, VolumeTrackerParams
@@ -194,10 +202,12 @@ def measure(vol: Volume, region: np.ndarray | None, level: float, p: VolumeTrack
     r_in = mp.inlier_radius_mm
     if len(pts) < mp.min_inliers:
         return fail(f"too few candidates: {len(pts)} < {mp.min_inliers}", 0, roi_voxels)
+    within = (None if max_angle_deg is None
+              else within_angle(predicted_direction, max_angle_deg))  # Chatelain eq. (22)
     res: RansacResult = ransac(
         pts, model, residual_threshold=r_in, weights=weights,
-        min_sample_distance=mp.min_sample_distance_mm,
-        predicted_direction=predicted_direction, max_angle_deg=max_angle_deg,
+        is_sample_valid=min_sample_distance(mp.min_sample_distance_mm),
+        is_model_valid=within, predicted_direction=predicted_direction,
         success_probability=mp.success_probability, max_trials=max_trials,
         batch_size=mp.batch_size, order=order,
         refine_iterations=mp.refine_iterations, rng=rng)  # Zhao App. B, Chatelain II-D

@@ -19,7 +19,13 @@ import math
 
 import numpy as np
 
-from ...backends import angles_to_direction, ransac, tip_velocity, zhao_model
+from ...backends import (
+    angles_to_direction,
+    min_sample_distance,
+    ransac,
+    tip_velocity,
+    zhao_model,
+)
 from ...features import Frame, FrangiFeatures
 from .._base import NeedleEstimate, Status
 from ._base import StateFilter, VolumeTracker, angles, wrap
@@ -164,7 +170,7 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
                     active = active[top[active.size - _SELECT_CANDIDATES:]]
             w = None if weights is None else weights[active]
             res = ransac(pts[active], "line", residual_threshold=r_in, weights=w,
-                         min_sample_distance=mp.min_sample_distance_mm,
+                         is_sample_valid=min_sample_distance(mp.min_sample_distance_mm),
                          success_probability=mp.success_probability,
                          max_trials=max_trials, batch_size=mp.batch_size,
                          refine_iterations=mp.refine_iterations, rng=self.rng)
