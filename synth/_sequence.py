@@ -46,7 +46,10 @@ class SequenceFileError(ValueError):
 
 @dataclass
 class Sequence:
-    """A labelled sequence of B-mode frames. Array and point conventions as DESIGN.md."""
+    """A labelled sequence of B-mode frames. Array and point conventions as DESIGN.md.
+
+    ``images`` is a uint8 array, or (for a long recording read from disk) an array-like stack
+    whose frames ``images[i]`` are read when indexed."""
 
     images: np.ndarray
     spacing_mm: np.ndarray
@@ -87,6 +90,15 @@ class Sequence:
         return {k: v for k, v in d.items() if v is not None}
 
 
+def _is_frame_array(im) -> bool:
+    """An ndarray, or an array-like stack of frames read on access (it has ``shape``,
+    ``dtype``, ``ndim``, ``len()`` and indexing by frame, as ``needlenet.io``'s readers give
+    for recordings too long to hold in memory)."""
+    if isinstance(im, np.ndarray):
+        return True
+    return all(hasattr(im, a) for a in ("shape", "dtype", "ndim", "__getitem__", "__len__"))
+
+
 def _err(source: str, key: str, msg: str) -> SequenceFileError:
     return SequenceFileError(f"{source}: key '{key}': {msg}")
 
@@ -94,7 +106,7 @@ def _err(source: str, key: str, msg: str) -> SequenceFileError:
 def validate_sequence(seq: Sequence, source: str = "sequence") -> Sequence:
     """Check shapes, dtypes and values; return ``seq`` or raise :class:`SequenceFileError`."""
     im = seq.images
-    if not isinstance(im, np.ndarray) or im.dtype != np.uint8:
+    if not _is_frame_array(im) or im.dtype != np.uint8:
         raise _err(source, "images", f"must be a uint8 array, got {getattr(im, 'dtype', type(im))}")
     if im.ndim not in (3, 4):
         raise _err(source, "images", f"must be (T, H, W) or (T, Z, Y, X), got shape {im.shape}")

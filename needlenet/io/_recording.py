@@ -36,6 +36,7 @@ from ._frames import (
     read_video,
     sidecar_path,
 )
+from ._lazy import is_frame_stack
 from ._limits import (
     MAX_POSITION_MM,
     check_extent,
@@ -255,8 +256,8 @@ def _drop_invalid_frames(seq_kw: dict, image_ok: np.ndarray, src: str) -> str:
                              "track")
     T = len(image_ok)
     for key, value in list(seq_kw.items()):
-        if isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[0] == T \
-                and key not in ("spacing_mm", "origin_mm"):
+        if (isinstance(value, np.ndarray) or is_frame_stack(value)) and value.ndim >= 1 \
+                and value.shape[0] == T and key not in ("spacing_mm", "origin_mm"):
             seq_kw[key] = value[image_ok]
     shown = ", ".join(str(int(i)) for i in bad[:10]) + (" ..." if bad.size > 10 else "")
     return (f"{src}: skipped {bad.size} of {T} frames marked ImageStatus = INVALID "
