@@ -37,6 +37,7 @@ writing, and ``ElementSpacing = sx sy sz`` becomes ``spacing_mm = (sy, sz, sx)``
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import zlib
@@ -47,6 +48,7 @@ import numpy as np
 
 from ._atomic import atomic_write
 from ._errors import RecordingError
+from ._lazy import mapped_frames
 from ._limits import check_allocation, check_frame_shape
 
 __all__ = ["PlusSequence", "read_plus", "write_plus", "plus_outputs", "ORIENTATIONS",
@@ -155,22 +157,41 @@ def _flag(header: dict, key: str, src: str) -> bool:
     return v in ("true", "1")
 
 
+def _data_file(path: Path, src: str, header: dict, offset: int) -> tuple[Path, int]:
+    """The file holding the pixels and where they start in it (-1: they are its last
+    bytes)."""
+    data_file = header["ElementDataFile"]
+    if data_file == "LOCAL":
+        return path, offset
+    if data_file.upper() == "LIST" or "%" in data_file or len(data_file.split()) > 1:
+        raise RecordingError(f"{src}: ElementDataFile = {data_file!r}: one data file per "
+                             "frame is not supported; write the sequence as one .mha")
+    target = (path.parent / data_file)
+    if not target.is_file():
+        raise RecordingError(f"{src}: ElementDataFile {data_file}: no such file next to "
+                             "the header")
+    skip = int(_numbers(header, "HeaderSize", src, 1, int)[0]) if "HeaderSize" in \
+        header else 0
+    return target, skip
+
+
+def _raw_span(path: Path, src: str, header: dict, offset: int,
+              nbytes: int) -> tuple[Path, int] | None:
+    """The file and offset of ``nbytes`` of uncompressed pixels, or None when the file does
+    not hold exactly that many after the header (:func:`_pixel_bytes` says how)."""
+    try:
+        target, skip = _data_file(path, src, header, offset)
+    except RecordingError:
+        return None
+    size = os.path.getsize(target)
+    start = skip if skip >= 0 else size - nbytes
+    return (target, start) if start >= 0 and size - start == nbytes else None
+
+
 def _pixel_bytes(path: Path, src: str, header: dict, offset: int, nbytes: int,
                  compressed: bool) -> bytes:
     """The pixel data as bytes, checking sizes against the header."""
-    data_file = header["ElementDataFile"]
-    if data_file == "LOCAL":
-        target, skip = path, offset
-    else:
-        if data_file.upper() == "LIST" or "%" in data_file or len(data_file.split()) > 1:
-            raise RecordingError(f"{src}: ElementDataFile = {data_file!r}: one data file per "
-                                 "frame is not supported; write the sequence as one .mha")
-        target = (path.parent / data_file)
-        if not target.is_file():
-            raise RecordingError(f"{src}: ElementDataFile {data_file}: no such file next to "
-                                 "the header")
-        skip = int(_numbers(header, "HeaderSize", src, 1, int)[0]) if "HeaderSize" in \
-            header else 0
+    target, skip = _data_file(path, src, header, offset)
     size = os.path.getsize(target)
     tsrc = str(target)
     with open(target, "rb") as fh:
@@ -278,6 +299,14 @@ def _orient(images: np.ndarray, code: str, volume: bool, src: str) -> np.ndarray
     return images
 
 
+def _first_frame(span: tuple[Path, int], shape: tuple, dtype: np.dtype) -> np.ndarray:
+    """The first frame's raw pixels, ``(1, *shape[1:])``."""
+    n = math.prod(shape[1:]) * dtype.itemsize
+    with open(span[0], "rb") as fh:
+        fh.seek(span[1])
+        return np.frombuffer(fh.read(n), dtype).reshape((1, *shape[1:]))
+
+
 def read_plus(path: str | os.PathLike) -> PlusSequence:
     """Read a PLUS sequence metafile (``.mha`` with the pixels inside, or ``.mhd`` and its
     ``.raw``), compressed or not; raise :class:`RecordingError` naming the file and field."""
@@ -327,11 +356,30 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
         raise RecordingError(f"{src}: BinaryData = False (pixels as text) is not supported")
     compressed = _flag(header, "CompressedData", src)
     shape = (T, *[int(d) for d in dims_sp[::-1]]) + ((channels,) if channels > 1 else ())
-    nbytes = check_allocation(shape, dtype.itemsize, src, "DimSize/ElementType")
+    # uncompressed 8-bit pixels are read frame by frame through a memory map (gray and
+    # orientation are per pixel); other types need the whole recording's intensity range
+    span = None
+    if not compressed and dtype == np.uint8:
+        span = _raw_span(path, src, header, offset, math.prod(shape))
+    if span is None:
+        nbytes = check_allocation(shape, dtype.itemsize, src, "DimSize/ElementType")
     check_frame_shape(shape[1:1 + len(dims_sp)], src, "DimSize")
-    blob = _pixel_bytes(path, src, header, offset, nbytes, compressed)
-    arr = np.frombuffer(blob, dtype=dtype).reshape(shape)
-    images, irange, notes = _to_gray_uint8(arr, channels)
+    code = header.get("UltrasoundImageOrientation", "MF")
+
+    def prepare(arr: np.ndarray) -> tuple[np.ndarray, tuple | None, list]:
+        """(T, *file frame) pixels -> uint8 frames in array order, the scaled intensity
+        range and the notes (see :func:`_to_gray_uint8`)."""
+        images, irange, notes = _to_gray_uint8(arr, channels)
+        images = _orient(images, code, volume, src)
+        if volume:
+            images = images.transpose(0, 2, 1, 3)  # (T, z, y, x) -> [depth, elevation, lateral]
+        return images, irange, notes
+
+    if span is not None:
+        raw = _first_frame(span, shape, dtype)  # the others are read when asked for
+    else:
+        blob = _pixel_bytes(path, src, header, offset, nbytes, compressed)
+        raw = np.frombuffer(blob, dtype=dtype).reshape(shape)
 
     frames: dict[str, list] = {}
     for key, value in header.items():
@@ -343,13 +391,14 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
             raise RecordingError(f"{src}: field {key}: frame {i} is beyond DimSize's {T} frames")
         frames.setdefault(name, [None] * T)[i] = value
 
-    code = header.get("UltrasoundImageOrientation", "MF")
-    images = _orient(images, code, volume, src)
-    if volume:
-        images = images.transpose(0, 2, 1, 3)  # (T, z, y, x) -> [depth, elevation, lateral]
-    images = np.ascontiguousarray(images)
-    if not images.flags.writeable:  # a view of the bytes read: give the caller its own array
-        images = images.copy()
+    images, irange, notes = prepare(raw)
+    if span is not None:
+        images = mapped_frames(span[0], span[1], T, shape[1:], dtype,
+                               lambda f: prepare(f[None])[0][0], images.shape[1:])
+    else:
+        images = np.ascontiguousarray(images)
+        if not images.flags.writeable:  # a view of the bytes read: give the caller its own
+            images = images.copy()
     utype = header.get("UltrasoundImageType", "BRIGHTNESS").upper()
     if utype not in ("BRIGHTNESS", "UNKNOWN", ""):
         raise RecordingError(f"{src}: UltrasoundImageType = {utype}; needlenet tracks B-mode "

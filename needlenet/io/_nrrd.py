@@ -14,6 +14,7 @@ first (fastest) spatial axis is read as lateral and its last as depth, so a volu
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 import zlib
@@ -23,11 +24,13 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import RecordingError
+from ._lazy import mapped_frames
 from ._limits import check_allocation, check_frame_shape
 from ._metaimage import _to_gray_uint8
 
 __all__ = ["NrrdRecording", "read_nrrd"]
 
+_UINT8 = ("uchar", "unsigned char", "uint8", "uint8_t")
 _SPATIAL = ("domain", "space")
 _LIST = ("list", "time")
 _COLOR = ("rgb-color", "rgba-color", "3-color", "4-color", "vector", "3-vector", "4-vector")
@@ -35,7 +38,7 @@ _COLOR = ("rgb-color", "rgba-color", "3-color", "4-color", "vector", "3-vector",
 
 @dataclass
 class NrrdRecording:
-    images: np.ndarray  # uint8 (T, H, W) or (T, Z, Y, X)
+    images: np.ndarray  # uint8 (T, H, W) or (T, Z, Y, X); raw 8-bit data: a FrameStack
     spacing_mm: np.ndarray | None
     origin_mm: np.ndarray
     timestamps_s: np.ndarray | None
@@ -56,10 +59,12 @@ _TYPE_BYTES = {**dict.fromkeys(("signed char", "int8", "int8_t", "uchar", "unsig
                                 "uint64_t", "double"), 8)}
 
 
-def _check_header(path: Path, src: str) -> None:
+def _check_header(path: Path, src: str) -> tuple[dict, tuple[Path, int] | None]:
     """The header alone, before any pixel is read: a known scalar type, sizes this machine can
     hold, and a detached data file that is a regular file next to the header holding (for raw
-    encoding) the bytes the sizes need."""
+    encoding) the bytes the sizes need. Returns the header and, for raw unsigned 8-bit data
+    that the file holds exactly (no line skip), the data file and the offset of the pixels,
+    which can then be memory-mapped; else None."""
     import nrrd
 
     try:
@@ -78,12 +83,15 @@ def _check_header(path: Path, src: str) -> None:
     if not sizes.size or any(not isinstance(n, (int, np.integer)) or n < 1 for n in sizes):
         raise RecordingError(f"{src}: field sizes = {sizes.tolist()} must be positive whole "
                              "numbers")
-    nbytes = check_allocation(sizes, _TYPE_BYTES[kind], src, "sizes/type")
+    nbytes = math.prod(int(n) for n in sizes) * _TYPE_BYTES[kind]
+    encoding = str(header.get("encoding", "")).lower()
+    span = _mappable_span(path, header, header_end, nbytes) if kind in _UINT8 else None
+    if span is None:  # read whole: it must fit in memory
+        check_allocation(sizes, _TYPE_BYTES[kind], src, "sizes/type")
     kinds = [str(k).lower() for k in header.get("kinds", [])]
     if len(kinds) == sizes.size:  # a frame: the spatial axes (not the list or colour axis)
         check_frame_shape([n for n, k in zip(sizes, kinds, strict=True)
                            if k not in _LIST + _COLOR], src, "sizes/kinds")
-    encoding = str(header.get("encoding", "")).lower()
     raw = encoding == "raw"
     data_file = header.get("data file", header.get("datafile"))
     if data_file is None:
@@ -114,6 +122,28 @@ def _check_header(path: Path, src: str) -> None:
                              f"the file has {avail - max(int(byte_skip), 0)}")
     if encoding in ("gzip", "gz", "bzip2", "bz2"):
         _check_inflated(target, start, encoding, nbytes + max(int(byte_skip), 0), src)
+    return header, span
+
+
+def _mappable_span(path: Path, header: dict, header_end: int,
+                   nbytes: int) -> tuple[Path, int] | None:
+    """The data file and the offset of ``nbytes`` of raw pixels when the file holds exactly
+    those after the header and skips (as pynrrd reads raw data: to the end of the file, or the
+    last bytes with ``byte skip: -1``), with no line skip; None otherwise."""
+    if str(header.get("encoding", "")).lower() != "raw" or \
+            header.get("line skip", header.get("lineskip", 0)) != 0 or \
+            not all(k in header for k in ("dimension", "type", "sizes", "encoding")):
+        return None
+    data_file = header.get("data file", header.get("datafile"))
+    target, start = (path, header_end) if data_file is None else (Path(str(data_file)), 0)
+    if data_file is not None and not target.is_absolute():
+        target = path.parent / target
+    byte_skip = header.get("byte skip", header.get("byteskip", 0))
+    if not target.is_file() or not isinstance(byte_skip, (int, np.integer)) or byte_skip < -1:
+        return None
+    end = os.path.getsize(target)
+    first = end - nbytes if byte_skip == -1 else start + int(byte_skip)
+    return (target, first) if first >= start and end - first == nbytes else None
 
 
 def _check_inflated(target: Path, start: int, encoding: str, need: int, src: str) -> None:
@@ -154,25 +184,9 @@ def _check_inflated(target: Path, start: int, encoding: str, need: int, src: str
                              f"({' '.join(str(exc).split())[:120]})") from None
 
 
-def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
-    """Read a NRRD image, volume or sequence; raise :class:`RecordingError` naming the file and
-    the field at fault."""
-    import nrrd
-
-    path = Path(path)
-    src = str(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{src}: no such recording")
-    _check_header(path, src)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            data, header = nrrd.read(src, index_order="F")
-    except (nrrd.NRRDError, OSError, ValueError, EOFError, zlib.error, TypeError,
-            KeyError, StopIteration, MemoryError) as exc:
-        raise RecordingError(f"{src}: not a readable NRRD file "
-                             f"({' '.join(str(exc).split())[:200]})") from None
-    nd = data.ndim
+def _axes(header: dict, nd: int, src: str):
+    """The axes' roles from ``kinds`` (or ``space directions``): the space directions
+    (None without them), the kinds, and the spatial, list (frame) and colour axes."""
     kinds = [str(k).lower() for k in header.get("kinds", [])]
     if kinds and len(kinds) != nd:
         raise RecordingError(f"{src}: field kinds has {len(kinds)} entries for dimension {nd}")
@@ -204,12 +218,54 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
         raise RecordingError(
             f"{src}: axes {roles} (from kinds / space directions): expected 2 or 3 spatial "
             "axes, at most one list (frame) axis and at most one colour axis")
+    return dirs, kinds, spatial, lists, colors
+
+
+def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
+    """Read a NRRD image, volume or sequence; raise :class:`RecordingError` naming the file and
+    the field at fault."""
+    import nrrd
+
+    path = Path(path)
+    src = str(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{src}: no such recording")
+    header, span = _check_header(path, src)
+    if span is not None:
+        sizes = [int(n) for n in header["sizes"]]
+        dirs, kinds, spatial, lists, colors = _axes(header, len(sizes), src)
+        if lists and lists[0] != len(sizes) - 1:
+            span = None  # frames interleaved (the list axis is not the slowest): read whole
+    if span is None:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                data, header = nrrd.read(src, index_order="F")
+        except (nrrd.NRRDError, OSError, ValueError, EOFError, zlib.error, TypeError,
+                KeyError, StopIteration, MemoryError) as exc:
+            raise RecordingError(f"{src}: not a readable NRRD file "
+                                 f"({' '.join(str(exc).split())[:200]})") from None
+        sizes = list(data.shape)
+        dirs, kinds, spatial, lists, colors = _axes(header, data.ndim, src)
+    nd = len(sizes)
     order = lists + spatial[::-1] + colors  # -> (T, depth, ..., lateral, C)
-    arr = np.transpose(data, order)
-    if not lists:
-        arr = arr[None]
-    channels = int(data.shape[colors[0]]) if colors else 1
-    images, irange, notes = _to_gray_uint8(np.ascontiguousarray(arr), channels)
+    channels = int(sizes[colors[0]]) if colors else 1
+    if span is not None:
+        # frame after frame, each in Fortran order: a C-order frame is its axes reversed
+        frame_f = sizes[:-1] if lists else sizes
+        frame_order = spatial[::-1] + colors
+
+        def prepare(raw: np.ndarray) -> np.ndarray:
+            return _to_gray_uint8(raw.T.transpose(frame_order)[None], channels)[0][0]
+
+        images = mapped_frames(span[0], span[1], sizes[-1] if lists else 1, frame_f[::-1],
+                               np.uint8, prepare, [sizes[a] for a in spatial[::-1]])
+        irange, notes = None, []
+    else:
+        arr = np.transpose(data, order)
+        if not lists:
+            arr = arr[None]
+        images, irange, notes = _to_gray_uint8(np.ascontiguousarray(arr), channels)
 
     spacing = None
     unit = []
