@@ -86,8 +86,13 @@ def run(args) -> int:
                        f"{'3D volumes' if args.tracker == 'volume' else args.tracker + ' images'}")
     tracker = _make_tracker(args, params)
     _check_model_grid(tracker, seq)
-    estimates = _run_tracker(args, tracker, seq)
-    _report(args, seq, estimates, out_json, overlay, out_plus)
+    from ..io import RecordingError
+
+    try:  # a long recording's frames are read as they are tracked: a damaged one is found here
+        estimates = _run_tracker(args, tracker, seq)
+        _report(args, seq, estimates, out_json, overlay, out_plus)
+    except RecordingError as exc:
+        raise CLIError(str(exc)) from None
     return 0
 
 
@@ -269,7 +274,7 @@ def _run_tracker(args, tracker, seq) -> list:
             estimates.append(est)
             bar.update()
             if streamer is not None:
-                streamer.send_frame(seq.images[i], seq.spacing_mm, est.tip_mm, est.direction,
+                streamer.send_frame(frame.image, seq.spacing_mm, est.tip_mm, est.direction,
                                     est.axis_point_mm, est.status, origin=seq.origin_mm,
                                     probe_pose=None if seq.probe_pose is None
                                     else seq.probe_pose[i], timestamp=None)

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import RecordingError
+from ._lazy import FrameStack, is_frame_stack
 from ._limits import check_allocation, check_frame_shape
 
 __all__ = ["IMAGE_SUFFIXES", "VIDEO_SUFFIXES", "read_sidecar", "sidecar_path",
@@ -97,13 +98,15 @@ def read_sidecar(path: Path) -> dict:
 
 
 def apply_crop(images: np.ndarray, crop, src: str) -> np.ndarray:
-    """Cut ``crop = (x, y, w, h)`` (pixels; x along the columns) out of every 2D frame."""
+    """Cut ``crop = (x, y, w, h)`` (pixels; x along the columns) out of every 2D frame (of a
+    :class:`~._lazy.FrameStack`: as each frame is read)."""
     x, y, w, h = (int(c) for c in crop)
     H, W = images.shape[1:3]
     if w < 2 or h < 2 or x < 0 or y < 0 or x + w > W or y + h > H:
         raise RecordingError(f"{src}: crop x,y,w,h = {x},{y},{w},{h} does not fit in frames of "
                              f"{W}x{H} pixels (width x height)")
-    return np.ascontiguousarray(images[:, y:y + h, x:x + w])
+    cut = images[:, y:y + h, x:x + w]
+    return cut if is_frame_stack(cut) else np.ascontiguousarray(cut)
 
 
 def _natural_key(p: Path):
@@ -119,36 +122,56 @@ def _gray(img: np.ndarray) -> np.ndarray:
     return img
 
 
-def read_image_folder(path: str | os.PathLike) -> np.ndarray:
+def read_image_folder(path: str | os.PathLike) -> FrameStack:
     """Every image file of a folder, in natural order (``f2.png`` before ``f10.png``), as
-    uint8 gray frames ``(T, H, W)``; colour is converted to gray (OpenCV's BGR luma)."""
-    import cv2
+    uint8 gray frames ``(T, H, W)``; colour is converted to gray (OpenCV's BGR luma).
 
+    The files are checked here (regular files, headers of a sane size, all alike, the first
+    one decoded) and each is decoded when its frame is read: a damaged file found then is a
+    :class:`RecordingError` naming the file and the frame."""
     path = Path(path)
     files = sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
                    key=_natural_key)
     if not files:
         raise RecordingError(f"{path}: no image files ({', '.join(IMAGE_SUFFIXES)}) in the "
                              "folder")
-    frames = []
+    sizes = []
     for f in files:
         if not f.is_file():  # a folder, or a FIFO that would never end
             raise RecordingError(f"{f}: not a regular file")
-        _check_image_size(f, len(files))
-        try:
-            img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-        except cv2.error as exc:
-            raise RecordingError(f"{f}: not a readable image ({_cv_message(exc)})") from None
-        if img is None:
-            raise RecordingError(f"{f}: not a readable image")
-        img = _gray(img)
-        if img.dtype != np.uint8:
-            raise RecordingError(f"{f}: {img.dtype} pixels; needlenet reads 8-bit frames")
-        if frames and img.shape != frames[0].shape:
-            raise RecordingError(f"{f}: {img.shape[1]}x{img.shape[0]} pixels, but "
-                                 f"{files[0].name} has {frames[0].shape[1]}x{frames[0].shape[0]}")
-        frames.append(img)
-    return np.stack(frames)
+        sizes.append(_check_image_size(f))
+    first = _read_image(files[0], 0, None, files[0])
+    h, w = first.shape
+    for f, size in zip(files, sizes, strict=True):
+        if size is not None and size != (h, w):
+            raise RecordingError(f"{f}: {size[1]}x{size[0]} pixels, but {files[0].name} has "
+                                 f"{w}x{h}")
+
+    def read(i: int) -> np.ndarray:
+        return first.copy() if i == 0 else _read_image(files[i], i, first.shape, files[0])
+
+    return FrameStack(read, len(files), first.shape, source=files)
+
+
+def _read_image(f: Path, i: int, shape, first: Path) -> np.ndarray:
+    """Frame ``i`` of a folder, decoded from ``f``: uint8 gray of ``shape`` (that of the
+    ``first`` file; None: any)."""
+    import cv2
+
+    frame = "" if i == 0 else f" (frame {i})"
+    try:
+        img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:
+        raise RecordingError(f"{f}: not a readable image{frame} ({_cv_message(exc)})") from None
+    if img is None:
+        raise RecordingError(f"{f}: not a readable image{frame}")
+    img = _gray(img)
+    if img.dtype != np.uint8:
+        raise RecordingError(f"{f}: {img.dtype} pixels{frame}; needlenet reads 8-bit frames")
+    if shape is not None and img.shape != tuple(shape):
+        raise RecordingError(f"{f}: {img.shape[1]}x{img.shape[0]} pixels{frame}, but "
+                             f"{first.name} has {shape[1]}x{shape[0]}")
+    return img
 
 
 def _cv_message(exc) -> str:
@@ -157,11 +180,11 @@ def _cv_message(exc) -> str:
     return (lines[-1] if lines else type(exc).__name__)[:200]
 
 
-def _check_image_size(f: Path, n_files: int) -> None:
-    """The size an image file's header claims (read by Pillow, which reads the header only),
-    checked before OpenCV allocates it: a damaged header claiming 50000 x 50000 pixels is an
-    error naming the file, not gigabytes allocated for a few bytes of data. ``n_files``
-    frames of that size must fit :func:`~._limits.memory_budget_bytes`."""
+def _check_image_size(f: Path) -> tuple[int, int] | None:
+    """The size ``(h, w)`` an image file's header claims (read by Pillow, which reads the
+    header only; None when Pillow cannot parse it), checked before OpenCV allocates it: a
+    damaged header claiming 50000 x 50000 pixels is an error naming the file, not gigabytes
+    allocated for a few bytes of data."""
     from PIL import Image
 
     Image.MAX_IMAGE_PIXELS = None  # the check below replaces Pillow's bomb warning
@@ -171,53 +194,99 @@ def _check_image_size(f: Path, n_files: int) -> None:
             bands = len(im.getbands())
             depth = 2 if im.mode in ("I;16", "I;16B", "I;16L", "I") else 1
     except Exception:  # Pillow cannot parse it: OpenCV will say so
-        return
+        return None
     check_frame_shape((h, w), str(f), "its header's image size")
-    check_allocation((n_files, h, w, bands), depth, str(f), "its header's image size")
+    check_allocation((h, w, bands), depth, str(f), "its header's image size")
+    return h, w
 
 
-def read_video(path: str | os.PathLike) -> tuple[np.ndarray, float | None, list[str]]:
+def read_video(path: str | os.PathLike) -> tuple[FrameStack, float | None, list[str]]:
     """Every frame of a video (OpenCV ``VideoCapture``) as uint8 gray ``(T, H, W)``, the
     container's frame rate (None when it does not say), and notes for the user (fewer frames
-    decoded than the container announces: a truncated or damaged file)."""
+    decoded than the container announces: a truncated or damaged file).
+
+    The video is decoded here once to count and check its frames, keeping none of them, and
+    again frame by frame as the frames are read (forwards; reading an earlier frame starts the
+    decoder again from the first)."""
     import cv2
 
     src = str(path)
     if not Path(path).is_file():  # OpenCV would wait on a FIFO for ever
         raise RecordingError(f"{src}: not a regular file")
+    cap = _open_video(src)
+    try:
+        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        announced = float(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0.0)
+        n, shape = 0, None
+        while True:
+            try:
+                ok, img = cap.read()
+            except cv2.error as exc:
+                raise RecordingError(f"{src}: frame {n} cannot be decoded "
+                                     f"({_cv_message(exc)})") from None
+            if not ok:
+                break
+            img = _gray(img)
+            if shape is not None and img.shape != shape:
+                raise RecordingError(f"{src}: frame {n} changes size")
+            check_frame_shape(img.shape, src, "frame size")
+            shape, n = img.shape, n + 1
+    finally:
+        cap.release()
+    if not n:
+        raise RecordingError(f"{src}: no frames could be decoded")
+    notes = []
+    if np.isfinite(announced) and announced > n:
+        notes.append(f"{src}: decoded {n} of the {int(announced)} frames the "
+                     "container announces; the file may be truncated or damaged")
+    stack = FrameStack(_VideoDecoder(src, shape).read, n, shape, source=src)
+    return stack, (fps if np.isfinite(fps) and fps > 0 else None), notes
+
+
+def _open_video(src: str):
+    import cv2
+
     try:
         cap = cv2.VideoCapture(src)
     except cv2.error as exc:
         raise RecordingError(f"{src}: OpenCV cannot open this video ({_cv_message(exc)})"
                              ) from None
-    try:
-        if not cap.isOpened():
-            raise RecordingError(f"{src}: OpenCV cannot open this video (damaged file, or a "
-                                 "codec it lacks)")
-        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
-        announced = float(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0.0)
-        frames = []
-        while True:
-            try:
-                ok, img = cap.read()
-            except cv2.error as exc:
-                raise RecordingError(f"{src}: frame {len(frames)} cannot be decoded "
-                                     f"({_cv_message(exc)})") from None
-            if not ok:
-                break
-            img = _gray(img)
-            if frames and img.shape != frames[0].shape:
-                raise RecordingError(f"{src}: frame {len(frames)} changes size")
-            # every decoded frame is kept: the whole video must fit the memory budget
-            check_frame_shape(img.shape, src, "frame size")
-            check_allocation((len(frames) + 1, *img.shape), 1, src, "the frames decoded")
-            frames.append(img)
-    finally:
+    if not cap.isOpened():
         cap.release()
-    if not frames:
-        raise RecordingError(f"{src}: no frames could be decoded")
-    notes = []
-    if np.isfinite(announced) and announced > len(frames):
-        notes.append(f"{src}: decoded {len(frames)} of the {int(announced)} frames the "
-                     "container announces; the file may be truncated or damaged")
-    return np.stack(frames), (fps if np.isfinite(fps) and fps > 0 else None), notes
+        raise RecordingError(f"{src}: OpenCV cannot open this video (damaged file, or a "
+                             "codec it lacks)")
+    return cap
+
+
+class _VideoDecoder:
+    """Frames of a video decoded on demand, in order: frame ``i`` after frame ``i - 1`` costs
+    one decode; a frame further on skips the ones between, an earlier one reopens the video."""
+
+    def __init__(self, src: str, shape: tuple[int, ...]):
+        self.src, self.shape = src, shape
+        self.cap, self.pos = None, 0
+
+    def read(self, i: int) -> np.ndarray:
+        import cv2
+
+        try:
+            if self.cap is None or i < self.pos:
+                if self.cap is not None:
+                    self.cap.release()
+                self.cap, self.pos = _open_video(self.src), 0
+            while self.pos < i:
+                if not self.cap.grab():
+                    break
+                self.pos += 1
+            ok, img = self.cap.read() if self.pos == i else (False, None)
+        except cv2.error as exc:
+            raise RecordingError(f"{self.src}: frame {i} cannot be decoded "
+                                 f"({_cv_message(exc)})") from None
+        if not ok:
+            raise RecordingError(f"{self.src}: frame {i} cannot be decoded (the file changed "
+                                 "since it was opened?)")
+        self.pos += 1
+        img = _gray(img)
+        if img.shape != self.shape:
+            raise RecordingError(f"{self.src}: frame {i} changes size")
+        return img
