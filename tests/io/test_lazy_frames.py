@@ -1,0 +1,202 @@
+"""Recordings read frame by frame: a lazily read PLUS, NRRD, image folder or video gives the
+same frames and the same tracking as the eager read, reads a frame only when it is asked for,
+and names the file and the frame of a damaged frame found late."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import synth
+from needlenet.cli import main
+from needlenet.io import RecordingError, load_recording, save_plus_sequence
+from needlenet.io._lazy import FrameStack
+from needlenet.trackers import make_tracker
+
+cv2 = pytest.importorskip("cv2")
+nrrd = pytest.importorskip("nrrd")
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return synth.generate("inplane", seed=22, frames=6, width_mm=16.0, depth_mm=20.0,
+                          angle_deg=35.0, start_length_mm=12.0, background="homogeneous")
+
+
+def _tips(s):
+    est = make_tracker("inplane", "line", "classical", seed=0).run(s)
+    return [e.status.value for e in est], np.array(
+        [np.full(2, np.nan) if e.tip_mm is None else e.tip_mm for e in est])
+
+
+def _same_tracking(a, b):
+    sa, ta = _tips(a)
+    sb, tb = _tips(b)
+    assert sa == sb
+    np.testing.assert_array_equal(ta, tb)
+
+
+def _write_nrrd(path, images, encoding):
+    """(T, H, W) frames as a NRRD sequence, the list axis slowest (header fields in the
+    file's axis order: lateral, depth, frames)."""
+    nrrd.write(str(path), np.ascontiguousarray(images), {
+        "kinds": ["domain", "domain", "list"], "encoding": encoding,
+        "space dimension": 2, "space directions": [[0.1, 0.0], [0.0, 0.1], [np.nan, np.nan]],
+        "axis 2 index values": " ".join(str(0.05 * i) for i in range(len(images)))},
+        index_order="C")
+
+
+# -- memory-mapped: uncompressed PLUS and raw NRRD ----------------------------------------------
+
+def test_uncompressed_plus_is_mapped_and_tracks_as_the_compressed_one(tmp_path, seq):
+    save_plus_sequence(seq, tmp_path / "raw.seq.mha", compress=False)
+    save_plus_sequence(seq, tmp_path / "z.seq.mha", compress=True)
+    lazy, eager = load_recording(tmp_path / "raw.seq.mha"), load_recording(tmp_path / "z.seq.mha")
+    assert isinstance(lazy.images, FrameStack) and isinstance(eager.images, np.ndarray)
+    assert lazy.images.shape == eager.images.shape == seq.images.shape
+    assert lazy.images.dtype == np.uint8 and lazy.images.ndim == 3
+    for i in range(seq.n_frames):
+        np.testing.assert_array_equal(lazy.images[i], seq.images[i])
+    np.testing.assert_array_equal(lazy.images, eager.images)
+    _same_tracking(lazy, eager)
+
+
+def test_a_mapped_frame_is_read_when_asked_for(tmp_path, seq):
+    """The file's bytes of frame 4, changed after opening, are what frame 4 reads: nothing
+    was read ahead of time (frame 0, read before, keeps what it read)."""
+    path = save_plus_sequence(seq, tmp_path / "raw.seq.mha", compress=False)[0]
+    got = load_recording(path)
+    f0 = got.images[0]
+    T, H, W = seq.images.shape
+    with open(path, "r+b") as fh:
+        fh.seek(path.stat().st_size - (T - 4) * H * W)
+        fh.write(bytes(H * W))
+    np.testing.assert_array_equal(f0, seq.images[0])
+    assert not got.images[4].any()
+    np.testing.assert_array_equal(got.images[3], seq.images[3])
+    f0[:] = 7  # a frame read is the caller's own copy
+    np.testing.assert_array_equal(got.images[0], seq.images[0])
+
+
+@pytest.mark.parametrize("orientation", ["UN", "MN", "UF"])
+def test_mapped_plus_applies_the_orientation_per_frame(tmp_path, seq, orientation):
+    path = save_plus_sequence(seq, tmp_path / "raw.seq.mha", compress=False)[0]
+    data = path.read_bytes().replace(b"UltrasoundImageOrientation = MF\n",
+                                     f"UltrasoundImageOrientation = {orientation}\n".encode())
+    (tmp_path / "o.seq.mha").write_bytes(data)
+    got = load_recording(tmp_path / "o.seq.mha")
+    want = seq.images[..., ::-1] if orientation[0] == "U" else seq.images
+    want = want[:, ::-1] if orientation[1] == "N" else want
+    assert isinstance(got.images, FrameStack)
+    np.testing.assert_array_equal(got.images[2], want[2])
+    np.testing.assert_array_equal(got.images, want)
+
+
+def test_raw_nrrd_is_mapped_and_tracks_as_the_gzip_one(tmp_path, seq):
+    _write_nrrd(tmp_path / "r.seq.nrrd", seq.images, "raw")
+    _write_nrrd(tmp_path / "g.seq.nrrd", seq.images, "gzip")
+    lazy, eager = load_recording(tmp_path / "r.seq.nrrd"), load_recording(tmp_path / "g.seq.nrrd")
+    assert isinstance(lazy.images, FrameStack) and isinstance(eager.images, np.ndarray)
+    np.testing.assert_array_equal(lazy.images, seq.images)
+    np.testing.assert_array_equal(lazy.images[5], eager.images[5])
+    np.testing.assert_array_equal(lazy.spacing_mm, eager.spacing_mm)
+    np.testing.assert_array_equal(lazy.timestamps_s, eager.timestamps_s)
+    _same_tracking(lazy, eager)
+
+
+def test_nrrd_with_interleaved_frames_is_read_whole(tmp_path, seq):
+    """The list axis fastest: every frame touches the whole file, so it is read at once."""
+    nrrd.write(str(tmp_path / "i.nrrd"), seq.images, {"kinds": ["list", "domain", "domain"],
+                                                      "encoding": "raw"}, index_order="F")
+    got = load_recording(tmp_path / "i.nrrd", spacing_mm=0.1, fps=20)
+    assert isinstance(got.images, np.ndarray)
+    np.testing.assert_array_equal(got.images, seq.images.transpose(0, 2, 1))
+
+
+# -- the frame stack ------------------------------------------------------------------------------
+
+def test_selections_and_crops_of_a_stack_read_nothing_until_indexed(seq):
+    reads = []
+
+    def read(i):
+        reads.append(i)
+        return seq.images[i].copy()
+
+    stack = FrameStack(read, seq.n_frames, seq.images.shape[1:])
+    sub = stack[[0, 3, 5]][1:, 2:12, 3:23]
+    assert sub.shape == (2, 10, 20) and reads == []
+    np.testing.assert_array_equal(sub[1], seq.images[5, 2:12, 3:23])
+    assert reads == [5]
+    mask = np.array([True, False, False, True, False, True])
+    np.testing.assert_array_equal(stack[mask], seq.images[mask])
+    np.testing.assert_array_equal(stack[-1], seq.images[-1])
+    with pytest.raises(IndexError):
+        stack[seq.n_frames]
+    assert (stack == seq.images).all() and stack.max() == seq.images.max()
+    np.testing.assert_array_equal(stack.astype(int), seq.images.astype(int))
+
+
+# -- image folders and videos --------------------------------------------------------------------
+
+def _folder(tmp_path, seq):
+    d = tmp_path / "frames"
+    d.mkdir()
+    for i, im in enumerate(seq.images):
+        cv2.imwrite(str(d / f"f{i}.png"), im)
+    return d
+
+
+def test_a_folder_decodes_only_the_frames_read(tmp_path, seq, monkeypatch):
+    d = _folder(tmp_path, seq)
+    decoded = []
+    imread = cv2.imread
+    monkeypatch.setattr(cv2, "imread", lambda f, *a: decoded.append(f) or imread(f, *a))
+    got = load_recording(d, spacing_mm=0.1, fps=20)
+    assert isinstance(got.images, FrameStack)
+    assert [p.rsplit("/", 1)[1] for p in decoded] == ["f0.png"]  # its size and type
+    np.testing.assert_array_equal(got.images[3], seq.images[3])
+    assert [p.rsplit("/", 1)[1] for p in decoded] == ["f0.png", "f3.png"]
+    monkeypatch.undo()
+    eager = dataclasses.replace(got, images=np.asarray(got.images))
+    np.testing.assert_array_equal(eager.images, seq.images)
+    _same_tracking(got, eager)
+
+
+def test_a_damaged_frame_found_late_names_the_file_and_the_frame(tmp_path, seq, capsys):
+    d = _folder(tmp_path, seq)
+    got = load_recording(d, spacing_mm=0.1, fps=20)
+    (d / "f4.png").write_bytes((d / "f4.png").read_bytes()[:60])  # damaged after opening
+    np.testing.assert_array_equal(got.images[0], seq.images[0])
+    with pytest.raises(RecordingError, match=r"f4\.png: not a readable image \(frame 4\)"):
+        got.images[4]
+    rc = main(["track", str(d), "--spacing", "0.1", "--fps", "20", "--features", "classical",
+               "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert err.strip().splitlines()[-1].startswith("needlenet: error: ")
+    assert "f4.png: not a readable image (frame 4)" in err and "Traceback" not in err
+
+
+def test_a_folder_frame_of_another_size_is_named(tmp_path, seq):
+    d = _folder(tmp_path, seq)
+    got = load_recording(d, spacing_mm=0.1, fps=20)
+    cv2.imwrite(str(d / "f2.png"), seq.images[2][:, :-4])
+    with pytest.raises(RecordingError, match=r"f2\.png: \d+x\d+ pixels \(frame 2\), but "
+                                             r"f0\.png has"):
+        got.images[2]
+
+
+def test_a_video_is_decoded_on_demand_in_any_order(tmp_path, seq):
+    path = tmp_path / "v.avi"
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 20,
+                        seq.images.shape[:0:-1], False)
+    for im in seq.images:
+        w.write(im)
+    w.release()
+    got = load_recording(path, spacing_mm=0.1)
+    assert isinstance(got.images, FrameStack) and got.n_frames == seq.n_frames
+    forwards = np.asarray(got.images)
+    backwards = np.stack([got.images[i] for i in range(seq.n_frames - 1, -1, -1)])[::-1]
+    np.testing.assert_array_equal(forwards, backwards)
+    np.testing.assert_array_equal(got.images[2], forwards[2])
+    assert np.abs(forwards.astype(int) - seq.images.astype(int)).mean() < 3.0  # MJPG
