@@ -9,7 +9,9 @@ gives another stack without reading anything. Code that needs every pixel at onc
 
 :func:`mapped_frames` reads uncompressed pixel data through a read-only memory map: each frame
 is copied out when it is read and its pages are handed back to the kernel, so the resident
-memory stays at a frame or two however long the recording is.
+memory stays at a frame or two however long the recording is. :func:`inflated_frames` reads
+frames out of one zlib stream (a compressed PLUS file), inflating them in order as they are
+read.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.lib.mixins import NDArrayOperatorsMixin
 
-__all__ = ["FrameStack", "mapped_frames", "is_frame_stack"]
+__all__ = ["FrameStack", "mapped_frames", "is_frame_stack", "ZlibStream", "inflated_frames"]
 
 
 def is_frame_stack(obj) -> bool:
@@ -147,3 +149,94 @@ def mapped_frames(path: str | os.PathLike, offset: int, n_frames: int, frame_sha
         return out
 
     return FrameStack(read, n_frames, out_shape, out_dtype, source=raw)
+
+
+class ZlibStream:
+    """The bytes one zlib stream inflates to, from byte ``start`` of ``path`` (``length``
+    compressed bytes), handed out in order: :meth:`next_bytes` inflates only what it returns
+    (its input read 1 MiB at a time). A stream cut short gives what it holds, then nothing;
+    damaged data raises ``zlib.error``."""
+
+    def __init__(self, path: str | os.PathLike, start: int, length: int):
+        self.path, self.start, self.length = path, int(start), int(length)
+        self._fh = None
+        self.restart()
+
+    def restart(self) -> None:
+        """Back to the stream's first byte."""
+        import zlib
+
+        if self._fh is not None:
+            self._fh.close()
+        self._fh = open(self.path, "rb")
+        self._fh.seek(self.start)
+        self._left = self.length
+        self._d = zlib.decompressobj()
+        self._pending = bytearray()
+        self._done = False
+        self.pos = 0  # bytes handed out so far
+
+    def next_bytes(self, n: int) -> bytes:
+        """The next ``n`` inflated bytes (fewer at the stream's end)."""
+        out = self._pending[:n]
+        del self._pending[:n]
+        while len(out) < n and not self._done:
+            if self._d.eof:
+                self._done = True
+                break
+            chunk = self._d.unconsumed_tail
+            if not chunk and self._left > 0:
+                chunk = self._fh.read(min(1 << 20, self._left))
+                self._left -= len(chunk)
+            if not chunk:  # the input ends before the stream does: what zlib still holds
+                self._pending += self._d.flush()
+                self._done = True
+                take = self._pending[:n - len(out)]
+                del self._pending[:len(take)]
+                out += take
+                break
+            out += self._d.decompress(chunk, n - len(out))
+        self.pos += len(out)
+        return bytes(out)
+
+    def close(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+    def __del__(self):
+        self.close()
+
+
+def inflated_frames(stream: ZlibStream, n_frames: int, frame_shape, dtype,
+                    prepare: Callable[[np.ndarray], np.ndarray], out_shape, src: str,
+                    out_dtype=np.uint8) -> FrameStack:
+    """Frames stored one after another in a zlib stream, inflated when read: frame ``i``
+    after frame ``i - 1`` inflates one frame, a frame further on inflates (and drops) the
+    ones between, an earlier one starts the stream again. Frame ``i`` is
+    ``prepare(raw_frame_i)``, as in :func:`mapped_frames`."""
+    import zlib
+
+    from ._errors import RecordingError
+
+    dtype = np.dtype(dtype)
+    frame_bytes = int(np.prod(frame_shape)) * dtype.itemsize
+
+    def read(i: int) -> np.ndarray:
+        try:
+            if stream.pos > i * frame_bytes:
+                stream.restart()
+            while stream.pos < i * frame_bytes:
+                if not stream.next_bytes(min(frame_bytes, i * frame_bytes - stream.pos)):
+                    break
+            data = stream.next_bytes(frame_bytes) if stream.pos == i * frame_bytes else b""
+        except (zlib.error, OSError) as exc:
+            raise RecordingError(f"{src}: frame {i}: compressed pixel data is damaged "
+                                 f"({exc})") from None
+        if len(data) != frame_bytes:
+            raise RecordingError(f"{src}: frame {i}: the compressed pixel data ends before it "
+                                 "(the file changed since it was opened?)")
+        raw = np.frombuffer(data, dtype).reshape(frame_shape)
+        return np.array(prepare(raw), order="C", copy=True)
+
+    return FrameStack(read, n_frames, out_shape, out_dtype, source=stream)

@@ -48,7 +48,8 @@ import numpy as np
 
 from ._atomic import atomic_write
 from ._errors import RecordingError
-from ._lazy import mapped_frames
+from ._gray import to_gray_uint8
+from ._lazy import ZlibStream, inflated_frames, mapped_frames
 from ._limits import check_allocation, check_frame_shape
 
 __all__ = ["PlusSequence", "read_plus", "write_plus", "plus_outputs", "ORIENTATIONS",
@@ -188,100 +189,87 @@ def _raw_span(path: Path, src: str, header: dict, offset: int,
     return (target, start) if start >= 0 and size - start == nbytes else None
 
 
-def _pixel_bytes(path: Path, src: str, header: dict, offset: int, nbytes: int,
-                 compressed: bool) -> bytes:
-    """The pixel data as bytes, checking sizes against the header."""
+def _compressed_span(path: Path, src: str, header: dict, offset: int,
+                     nbytes: int) -> tuple[Path, int, int]:
+    """The file holding the zlib stream of the pixels, where it starts and its length in
+    bytes, checked against ``CompressedDataSize`` and what zlib can inflate to ``nbytes``."""
     target, skip = _data_file(path, src, header, offset)
     size = os.path.getsize(target)
     tsrc = str(target)
-    with open(target, "rb") as fh:
-        if compressed:
-            csize = int(_numbers(header, "CompressedDataSize", src, 1, int)[0]) \
-                if "CompressedDataSize" in header else None
-            if csize is not None and csize < 1:
-                raise RecordingError(f"{src}: CompressedDataSize = {csize} must be positive")
-            start = skip if skip >= 0 else size - (csize or 0)
-            avail = size - start
-            if csize is not None and avail < csize:
-                raise RecordingError(
-                    f"{tsrc}: truncated: CompressedDataSize = {csize} but only {avail} bytes "
-                    "of pixel data follow the header")
-            if start < 0 or avail < 1:
-                raise RecordingError(f"{tsrc}: no compressed pixel data after the header")
-            if nbytes > _MAX_INFLATION * (csize if csize is not None else avail) + 1024:
-                raise RecordingError(
-                    f"{tsrc}: DimSize/ElementType need {nbytes} bytes of pixels, more than "
-                    f"zlib can inflate from the {csize or avail} compressed bytes given; "
-                    "damaged header?")
+    csize = int(_numbers(header, "CompressedDataSize", src, 1, int)[0]) \
+        if "CompressedDataSize" in header else None
+    if csize is not None and csize < 1:
+        raise RecordingError(f"{src}: CompressedDataSize = {csize} must be positive")
+    start = skip if skip >= 0 else size - (csize or 0)
+    avail = size - start
+    if csize is not None and avail < csize:
+        raise RecordingError(
+            f"{tsrc}: truncated: CompressedDataSize = {csize} but only {avail} bytes "
+            "of pixel data follow the header")
+    if start < 0 or avail < 1:
+        raise RecordingError(f"{tsrc}: no compressed pixel data after the header")
+    if nbytes > _MAX_INFLATION * (csize if csize is not None else avail) + 1024:
+        raise RecordingError(
+            f"{tsrc}: DimSize/ElementType need {nbytes} bytes of pixels, more than "
+            f"zlib can inflate from the {csize or avail} compressed bytes given; "
+            "damaged header?")
+    return target, start, csize if csize is not None else avail
+
+
+def _inflated_size_error(tsrc: str, nbytes: int, got: int) -> RecordingError:
+    return RecordingError(
+        f"{tsrc}: the header's DimSize/ElementType need {nbytes} bytes of pixels "
+        f"but the compressed data holds {'more' if got > nbytes else got}"
+        + ("" if got > nbytes else " (truncated file?)"))
+
+
+def _check_inflated(stream: ZlibStream, nbytes: int, tsrc: str) -> None:
+    """The stream inflates to exactly ``nbytes``: counted 1 MiB at a time, kept nowhere."""
+    total = 0
+    try:
+        while total <= nbytes:
+            piece = stream.next_bytes(min(1 << 20, nbytes + 1 - total))
+            if not piece:
+                break
+            total += len(piece)
+    except zlib.error as exc:
+        raise RecordingError(f"{tsrc}: compressed pixel data is damaged ({exc})") from None
+    if total != nbytes:
+        raise _inflated_size_error(tsrc, nbytes, total)
+    stream.restart()
+
+
+def _pixel_bytes(path: Path, src: str, header: dict, offset: int, nbytes: int,
+                 compressed: bool) -> bytes:
+    """The pixel data as bytes, checking sizes against the header."""
+    if compressed:
+        target, start, length = _compressed_span(path, src, header, offset, nbytes)
+        with open(target, "rb") as fh:
             fh.seek(start)
-            blob = fh.read(csize if csize is not None else avail)
-            try:
-                d = zlib.decompressobj()
-                out = d.decompress(blob, nbytes + 1)
-                if len(out) <= nbytes and not d.eof:
-                    out += d.flush()
-            except zlib.error as exc:
-                raise RecordingError(f"{tsrc}: compressed pixel data is damaged ({exc})"
-                                     ) from None
-            if len(out) != nbytes:
-                raise RecordingError(
-                    f"{tsrc}: the header's DimSize/ElementType need {nbytes} bytes of pixels "
-                    f"but the compressed data holds {'more' if len(out) > nbytes else len(out)}"
-                    + ("" if len(out) > nbytes else " (truncated file?)"))
-            return out
-        start = skip if skip >= 0 else size - nbytes
-        avail = size - start
-        if avail != nbytes or start < 0:
-            what = "truncated" if avail < nbytes else "sizes do not match the data"
-            raise RecordingError(
-                f"{tsrc}: {what}: DimSize/ElementType/ElementNumberOfChannels need {nbytes} "
-                f"bytes of pixels, the file has {max(avail, 0)} after the header")
+            blob = fh.read(length)
+        try:
+            d = zlib.decompressobj()
+            out = d.decompress(blob, nbytes + 1)
+            if len(out) <= nbytes and not d.eof:
+                out += d.flush()
+        except zlib.error as exc:
+            raise RecordingError(f"{target}: compressed pixel data is damaged ({exc})"
+                                 ) from None
+        if len(out) != nbytes:
+            raise _inflated_size_error(str(target), nbytes, len(out))
+        return out
+    target, skip = _data_file(path, src, header, offset)
+    size = os.path.getsize(target)
+    start = skip if skip >= 0 else size - nbytes
+    avail = size - start
+    if avail != nbytes or start < 0:
+        what = "truncated" if avail < nbytes else "sizes do not match the data"
+        raise RecordingError(
+            f"{target}: {what}: DimSize/ElementType/ElementNumberOfChannels need {nbytes} "
+            f"bytes of pixels, the file has {max(avail, 0)} after the header")
+    with open(target, "rb") as fh:
         fh.seek(start)
         return fh.read(nbytes)
-
-
-def _to_gray_uint8(arr: np.ndarray, channels: int) -> tuple[np.ndarray, tuple | None, list]:
-    """Colour to gray (ITU-R BT.601 luma of R, G, B), other types scaled to 0..255; returns
-    (frames, the scaled intensity range or None, notes for the user).
-
-    Scaling maps the finite range to 0..255, except that values further beyond the 0.01-99.99
-    percentile range than that range is wide (a dead or hot pixel, a 1e6 in float data) are
-    clipped instead of compressing every frame to black; pixels that are not finite are shown
-    black. Either is reported in the notes."""
-    notes: list[str] = []
-    if channels >= 3:
-        a = arr[..., :3].astype(np.float32)
-        arr = a[..., 0] * 0.299 + a[..., 1] * 0.587 + a[..., 2] * 0.114
-        if arr.size and float(arr.max()) <= 255.0 and float(arr.min()) >= 0.0:
-            return np.clip(np.rint(arr), 0, 255).astype(np.uint8), None, notes
-    elif channels == 2:
-        arr = arr[..., 0]
-    if arr.dtype == np.uint8:
-        return np.ascontiguousarray(arr), None, notes
-    a = arr.astype(np.float64)
-    finite = np.isfinite(a)
-    if not finite.all():
-        bad = ~finite
-        frames = np.flatnonzero(bad.reshape(len(a), -1).any(axis=1))
-        notes.append(f"{int(bad.sum())} pixels in {len(frames)} frames (first: frame "
-                     f"{int(frames[0])}) are not finite numbers; they are shown black")
-    vals = a[finite]
-    if not vals.size:
-        return np.zeros(a.shape, np.uint8), (0.0, 0.0), notes
-    lo, hi = float(vals.min()), float(vals.max())
-    p_lo, p_hi = (float(v) for v in np.percentile(vals, [0.01, 99.99]))
-    width = p_hi - p_lo
-    if width > 0 and (hi - p_hi > width or p_lo - lo > width):
-        inlier = (vals >= p_lo - width) & (vals <= p_hi + width)
-        lo, hi = float(vals[inlier].min()), float(vals[inlier].max())
-        notes.append(f"{int(vals.size - inlier.sum())} pixels lie far outside the "
-                     f"recording's intensity range ({lo:.6g} to {hi:.6g}); they are clipped "
-                     "to it")
-    a = np.where(finite, a, lo)
-    if hi <= lo:
-        return np.zeros(a.shape, np.uint8), (lo, hi), notes
-    return np.rint((np.clip(a, lo, hi) - lo) * (255.0 / (hi - lo))).astype(np.uint8), (lo, hi), \
-        notes
 
 
 def _orient(images: np.ndarray, code: str, volume: bool, src: str) -> np.ndarray:
@@ -356,8 +344,8 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
         raise RecordingError(f"{src}: BinaryData = False (pixels as text) is not supported")
     compressed = _flag(header, "CompressedData", src)
     shape = (T, *[int(d) for d in dims_sp[::-1]]) + ((channels,) if channels > 1 else ())
-    # uncompressed 8-bit pixels are read frame by frame through a memory map (gray and
-    # orientation are per pixel); other types need the whole recording's intensity range
+    # 8-bit pixels are read frame by frame, through a memory map or inflated in order (gray
+    # and orientation are per pixel); other types need the whole recording's intensity range
     span = None
     if not compressed and dtype == np.uint8:
         span = _raw_span(path, src, header, offset, math.prod(shape))
@@ -368,15 +356,22 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
 
     def prepare(arr: np.ndarray) -> tuple[np.ndarray, tuple | None, list]:
         """(T, *file frame) pixels -> uint8 frames in array order, the scaled intensity
-        range and the notes (see :func:`_to_gray_uint8`)."""
-        images, irange, notes = _to_gray_uint8(arr, channels)
+        range and the notes (see :func:`~._gray.to_gray_uint8`)."""
+        images, irange, notes = to_gray_uint8(arr, channels)
         images = _orient(images, code, volume, src)
         if volume:
             images = images.transpose(0, 2, 1, 3)  # (T, z, y, x) -> [depth, elevation, lateral]
         return images, irange, notes
 
+    stream = None
     if span is not None:
         raw = _first_frame(span, shape, dtype)  # the others are read when asked for
+    elif compressed and dtype == np.uint8:  # inflated frame by frame when read
+        target, start, length = _compressed_span(path, src, header, offset, nbytes)
+        stream = ZlibStream(target, start, length)
+        _check_inflated(stream, nbytes, str(target))
+        frame_bytes = math.prod(shape[1:])
+        raw = np.frombuffer(stream.next_bytes(frame_bytes), dtype).reshape((1, *shape[1:]))
     else:
         blob = _pixel_bytes(path, src, header, offset, nbytes, compressed)
         raw = np.frombuffer(blob, dtype=dtype).reshape(shape)
@@ -395,6 +390,9 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
     if span is not None:
         images = mapped_frames(span[0], span[1], T, shape[1:], dtype,
                                lambda f: prepare(f[None])[0][0], images.shape[1:])
+    elif stream is not None:
+        images = inflated_frames(stream, T, shape[1:], dtype, lambda f: prepare(f[None])[0][0],
+                                 images.shape[1:], src)
     else:
         images = np.ascontiguousarray(images)
         if not images.flags.writeable:  # a view of the bytes read: give the caller its own

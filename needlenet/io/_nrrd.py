@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from ._errors import RecordingError
+from ._gray import to_gray_uint8
 from ._lazy import mapped_frames
 from ._limits import check_allocation, check_frame_shape
-from ._metaimage import _to_gray_uint8
 
 __all__ = ["NrrdRecording", "read_nrrd"]
 
@@ -256,7 +256,7 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
         frame_order = spatial[::-1] + colors
 
         def prepare(raw: np.ndarray) -> np.ndarray:
-            return _to_gray_uint8(raw.T.transpose(frame_order)[None], channels)[0][0]
+            return to_gray_uint8(raw.T.transpose(frame_order)[None], channels)[0][0]
 
         images = mapped_frames(span[0], span[1], sizes[-1] if lists else 1, frame_f[::-1],
                                np.uint8, prepare, [sizes[a] for a in spatial[::-1]])
@@ -265,7 +265,7 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
         arr = np.transpose(data, order)
         if not lists:
             arr = arr[None]
-        images, irange, notes = _to_gray_uint8(np.ascontiguousarray(arr), channels)
+        images, irange, notes = to_gray_uint8(np.ascontiguousarray(arr), channels)
 
     spacing = None
     unit = []

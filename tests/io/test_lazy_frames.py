@@ -48,17 +48,32 @@ def _write_nrrd(path, images, encoding):
 
 # -- memory-mapped: uncompressed PLUS and raw NRRD ----------------------------------------------
 
-def test_uncompressed_plus_is_mapped_and_tracks_as_the_compressed_one(tmp_path, seq):
+def test_plus_is_read_frame_by_frame_and_tracks_as_the_array(tmp_path, seq):
+    """Uncompressed: through a memory map; compressed: inflated in order as read."""
     save_plus_sequence(seq, tmp_path / "raw.seq.mha", compress=False)
     save_plus_sequence(seq, tmp_path / "z.seq.mha", compress=True)
-    lazy, eager = load_recording(tmp_path / "raw.seq.mha"), load_recording(tmp_path / "z.seq.mha")
-    assert isinstance(lazy.images, FrameStack) and isinstance(eager.images, np.ndarray)
-    assert lazy.images.shape == eager.images.shape == seq.images.shape
-    assert lazy.images.dtype == np.uint8 and lazy.images.ndim == 3
-    for i in range(seq.n_frames):
-        np.testing.assert_array_equal(lazy.images[i], seq.images[i])
-    np.testing.assert_array_equal(lazy.images, eager.images)
-    _same_tracking(lazy, eager)
+    mapped, inflated = load_recording(tmp_path / "raw.seq.mha"), \
+        load_recording(tmp_path / "z.seq.mha")
+    assert isinstance(mapped.images.source, np.ndarray)  # the raw frames, memory-mapped
+    for got in (mapped, inflated):
+        assert isinstance(got.images, FrameStack)
+        assert got.images.shape == seq.images.shape
+        assert got.images.dtype == np.uint8 and got.images.ndim == 3
+        for i in (0, 1, 5, 2, 0):  # forwards, then back
+            np.testing.assert_array_equal(got.images[i], seq.images[i])
+        np.testing.assert_array_equal(got.images, seq.images)
+        _same_tracking(got, seq)
+
+
+def test_a_compressed_plus_cut_after_opening_names_the_frame(tmp_path, seq):
+    path = save_plus_sequence(seq, tmp_path / "z.seq.mha", compress=True)[0]
+    got = load_recording(path)
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) - 200])
+    np.testing.assert_array_equal(got.images[0], seq.images[0])
+    with pytest.raises(RecordingError, match=r"z\.seq\.mha: frame 5: the compressed pixel "
+                                             r"data ends before it"):
+        got.images[5]
 
 
 def test_a_mapped_frame_is_read_when_asked_for(tmp_path, seq):
