@@ -55,13 +55,14 @@ def _frame_3d(seq, i, est):
     return np.hstack(panels)
 
 
-def overlay_frames(seq, estimates, max_size: int = 320) -> list[np.ndarray]:
-    """BGR images of every frame with the estimate (red) and the ground truth (green)."""
+def overlay_frames(seq, estimates, max_size: int = 320, step: int = 1) -> list[np.ndarray]:
+    """BGR images of every ``step``-th frame (0, step, 2 step, ...) with the estimate (red)
+    and the ground truth (green); only those frames are read."""
     out = []
     big = max(seq.images.shape[1:3])
     scale = max(1, int(max_size // big))
     shrink = max_size / big if seq.ndim == 2 and big > max_size else 1.0
-    for i in range(seq.n_frames):
+    for i in range(0, seq.n_frames, max(1, int(step))):
         est = estimates[i] if estimates is not None else None
         img = _frame_3d(seq, i, est) if seq.ndim == 3 else _frame_2d(seq, i, est, scale)
         if shrink < 1.0:  # drawn at full size, then averaged down (a smaller file)
@@ -78,9 +79,8 @@ def write_overlay(path: str | Path, seq, estimates, fps: float | None = None,
     """Write the overlay as an animated GIF (Pillow) or MP4/AVI (OpenCV), by extension;
     2D frames larger than ``max_size`` pixels are scaled down to it."""
     path = Path(path)
-    frames = overlay_frames(seq, estimates, max_size=max_size)
-    step = max(1, int(np.ceil(len(frames) / max_frames)))
-    frames = frames[::step]
+    step = max(1, int(np.ceil(seq.n_frames / max_frames)))
+    frames = overlay_frames(seq, estimates, max_size=max_size, step=step)
     if fps is None:
         dt = np.median(np.diff(seq.timestamps_s)) if seq.n_frames > 1 else 0.05
         fps = float(np.clip(1.0 / max(dt * step, 1e-3), 1.0, 30.0))

@@ -215,3 +215,19 @@ def test_a_video_is_decoded_on_demand_in_any_order(tmp_path, seq):
     np.testing.assert_array_equal(forwards, backwards)
     np.testing.assert_array_equal(got.images[2], forwards[2])
     assert np.abs(forwards.astype(int) - seq.images.astype(int)).mean() < 3.0  # MJPG
+
+
+def test_an_overlay_reads_only_the_frames_it_shows(tmp_path, seq):
+    from needlenet.io import write_overlay
+
+    reads = []
+
+    def read(i):
+        reads.append(i)
+        return seq.images[i].copy()
+
+    lazy = dataclasses.replace(seq, images=FrameStack(read, seq.n_frames, seq.images.shape[1:]))
+    est = make_tracker("inplane", "line", "classical", seed=0).run(seq)
+    write_overlay(tmp_path / "o.gif", lazy, est, max_frames=3)
+    assert reads == [0, 2, 4]
+    assert (tmp_path / "o.gif").stat().st_size > 0
