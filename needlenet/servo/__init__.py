@@ -83,17 +83,14 @@ from ._images import (
 from ._plot import plot_runs
 from ._ye import (
     YE_TABLE2,
-    MassDamperAxis,
     Measurement,
-    PositionPD,
-    SpeedGain,
-    VelocityPI,
     YeServoConfig,
     run_ye,
     table2,
     ye_insertion_velocity,
     ye_tip_path,
 )
+from ._ye_control import MassDamperAxis, PositionPD, SpeedGain, VelocityPI
 
 __all__ = [
     "CALIBRATION_SEEDS", "CHATELAIN_REST", "FAULTS", "FEATURES_2D", "FEATURES_3D", "FILTERS",
