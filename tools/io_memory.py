@@ -1,12 +1,12 @@
 """Peak memory of ``needlenet track`` on long recordings: writes 500 x 384 uint8 recordings of
-a given length as an uncompressed PLUS ``.mha``, a raw NRRD and a folder of PNG frames (the
-frames of one seeded in-plane sequence, repeated), then runs
+a given length as an uncompressed PLUS ``.mha`` (and a compressed one), a raw NRRD and a folder
+of PNG frames (the frames of one seeded in-plane sequence, repeated), then runs
 
     /usr/bin/time -v needlenet track FILE --spacing 0.1 --features classical --quiet
 
 on each and prints the maximum resident set size and the wall time.
 
-    python tools/io_memory.py write /tmp/io_mem 300 10000 --png 2000
+    python tools/io_memory.py write /tmp/io_mem 300 10000 --png 2000 [--compressed]
     python tools/io_memory.py measure /tmp/io_mem
 """
 
@@ -35,12 +35,25 @@ def _frames(base: np.ndarray, n: int):
         yield base[cycle[i % len(cycle)]]
 
 
-def write_plus(path: Path, base: np.ndarray, n: int, fps: float = 20.0) -> None:
-    """An uncompressed PLUS sequence metafile, written frame by frame."""
+def write_plus(path: Path, base: np.ndarray, n: int, fps: float = 20.0,
+               compress: bool = False) -> None:
+    """A PLUS sequence metafile, written frame by frame (compressed: one zlib stream, made
+    in a temporary file first since the header gives its size)."""
+    import shutil
+    import tempfile
+    import zlib
+
     H, W = base.shape[1:]
+    spool = tempfile.TemporaryFile()
+    if compress:
+        z = zlib.compressobj(1)
+        for f in _frames(base, n):
+            spool.write(z.compress(f.tobytes()))
+        spool.write(z.flush())
     lines = ["ObjectType = Image", "NDims = 3", "BinaryData = True",
-             "BinaryDataByteOrderMSB = False", "CompressedData = False",
-             f"DimSize = {W} {H} {n}", "ElementNumberOfChannels = 1",
+             "BinaryDataByteOrderMSB = False", f"CompressedData = {compress}"]
+    lines += [f"CompressedDataSize = {spool.tell()}"] if compress else []
+    lines += [f"DimSize = {W} {H} {n}", "ElementNumberOfChannels = 1",
              "ElementSpacing = 0.1 0.1 1", "ElementType = MET_UCHAR",
              "Kinds = domain domain list", "Offset = 0 0 0",
              "UltrasoundImageOrientation = MF", "UltrasoundImageType = BRIGHTNESS"]
@@ -48,8 +61,13 @@ def write_plus(path: Path, base: np.ndarray, n: int, fps: float = 20.0) -> None:
     lines += [f"Seq_Frame{i:04d}_ImageStatus = OK" for i in range(n)]
     with open(path, "wb") as fh:
         fh.write(("\n".join(lines) + "\nElementDataFile = LOCAL\n").encode())
-        for f in _frames(base, n):
-            fh.write(f.tobytes())
+        if compress:
+            spool.seek(0)
+            shutil.copyfileobj(spool, fh)
+        else:
+            for f in _frames(base, n):
+                fh.write(f.tobytes())
+    spool.close()
 
 
 def write_nrrd(path: Path, base: np.ndarray, n: int, fps: float = 20.0) -> None:
@@ -73,13 +91,16 @@ def write_png(folder: Path, base: np.ndarray, n: int) -> None:
         cv2.imwrite(str(folder / f"f{i:05d}.png"), f)
 
 
-def write(out: Path, lengths: list[int], png: int | None) -> None:
+def write(out: Path, lengths: list[int], png: int | None, compressed: bool) -> None:
     out.mkdir(parents=True, exist_ok=True)
     base = _base_frames()
     for n in lengths:
         write_plus(out / f"rec{n}.mha", base, n)
         write_nrrd(out / f"rec{n}.nrrd", base, n)
         print(f"wrote {out}/rec{n}.mha and .nrrd", flush=True)
+        if compressed:
+            write_plus(out / f"rec{n}z.mha", base, n, compress=True)
+            print(f"wrote {out}/rec{n}z.mha", flush=True)
     for n in sorted({min(png or max(lengths), n) for n in lengths}):
         write_png(out / f"png{n}", base, n)
         print(f"wrote {out}/png{n}/ ({n} PNG frames)", flush=True)
@@ -115,12 +136,14 @@ def main(argv=None) -> int:
     w.add_argument("out", type=Path)
     w.add_argument("lengths", type=int, nargs="+")
     w.add_argument("--png", type=int, help="at most this many PNG frames per folder")
+    w.add_argument("--compressed", action="store_true",
+                   help="also a compressed PLUS file of each length (recNz.mha)")
     m = sub.add_parser("measure")
     m.add_argument("out", type=Path)
     m.add_argument("extra", nargs="*", help="more needlenet track options")
     a = ap.parse_args(argv)
     if a.cmd == "write":
-        write(a.out, a.lengths, a.png)
+        write(a.out, a.lengths, a.png, a.compressed)
     else:
         measure(a.out, a.extra)
     return 0

@@ -122,6 +122,9 @@ class FrameStack(NDArrayOperatorsMixin):
         raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
 
 
+_DROP_MARGIN = 1 << 20  # bytes; more than the kernel's fault-around (64 KiB by default)
+
+
 def mapped_frames(path: str | os.PathLike, offset: int, n_frames: int, frame_shape,
                   dtype, prepare: Callable[[np.ndarray], np.ndarray], out_shape,
                   out_dtype=np.uint8) -> FrameStack:
@@ -142,9 +145,9 @@ def mapped_frames(path: str | os.PathLike, offset: int, n_frames: int, frame_sha
 
     def read(i: int) -> np.ndarray:
         out = np.array(prepare(raw[i]), order="C", copy=True)
-        if can_drop:
-            a = (int(offset) + i * frame_bytes) // page * page
-            b = min(int(offset) + (i + 1) * frame_bytes, len(mm))
+        if can_drop:  # the kernel maps pages around a fault too: drop a margin either side
+            a = max(int(offset) + i * frame_bytes - _DROP_MARGIN, 0) // page * page
+            b = min(int(offset) + (i + 1) * frame_bytes + _DROP_MARGIN, len(mm))
             mm.madvise(mmap.MADV_DONTNEED, a, b - a)
         return out
 
