@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._cell_kernels import cells_near_box, cells_near_sector, splat_box_cells, splat_sector_cells
-from ._probe import SectorProbe
 from ._world import Tissue
 
 __all__ = ["CellCache", "near_cells", "cache_bytes"]
@@ -48,15 +46,7 @@ def near_cells(probe, tissue: Tissue, cells: np.ndarray, M: np.ndarray, lo, hi,
     reach = 0.5 * np.sqrt(3.0) * tissue.cell_mm + float(pad_mm) + 1e-3
     R = np.ascontiguousarray(M[:3, :3], dtype=np.float64)
     t = np.ascontiguousarray(M[:3, 3], dtype=np.float64)
-    if isinstance(probe, SectorProbe):
-        bg = probe.beam_grid
-        keep = cells_near_sector(centres, reach, R, t, np.asarray(bg.origin_mm, float),
-                                 np.asarray(bg.spacing_mm, float),
-                                 np.asarray(bg.shape, np.float64))
-    else:
-        keep = cells_near_box(centres, reach, R, t, np.asarray(lo, float),
-                              np.asarray(hi, float))
-    return cells[keep]
+    return cells[probe.cells_near(centres, reach, R, t, lo, hi)]
 
 
 class CellCache:
@@ -141,13 +131,4 @@ class CellCache:
         float64, which sums faster than float32 and rounds once)."""
         R = np.ascontiguousarray(M[:3, :3], dtype=np.float64)
         t = np.ascontiguousarray(M[:3, 3], dtype=np.float64)
-        bg = probe.beam_grid
-        origin = np.asarray(bg.origin_mm, float)
-        step = np.asarray(bg.spacing_mm, float)
-        if isinstance(probe, SectorProbe):
-            splat_sector_cells(self.xyz, self.amp, slots, self.n_per_cell, R, t, origin, step,
-                               two_k, out)
-        else:
-            splat_box_cells(self.xyz, self.amp, slots, self.n_per_cell, R, t,
-                            np.asarray(lo, float), np.asarray(hi, float), origin, step, two_k,
-                            out)
+        probe.splat_cells(self.xyz, self.amp, slots, self.n_per_cell, R, t, lo, hi, two_k, out)

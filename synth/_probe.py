@@ -11,6 +11,12 @@ the transducer face. ``probe_pose`` (4x4) maps probe coordinates to world coordi
 
 Each probe gives its acquisition ("beam") grid, maps probe-frame points to fractional beam
 indices, gives the beam direction at any point, and scan-converts beam data to its image grid.
+It also carries the per-geometry steps of image formation that the scanner asks it for:
+which scatterers it can see and how they are splatted onto its beam grid (directly, or from
+the cached cells of a moving 3D probe), the range of a point along its beam, which points lie
+inside its beams, the mask of the image its beams cover, and the 8-bit image it shows.
+:class:`_BeamProbe` holds the defaults of a Cartesian probe (beams parallel to z, the beam
+grid the image grid); the plane and sector probes override what differs.
 """
 
 from __future__ import annotations
@@ -20,8 +26,17 @@ from functools import cached_property
 
 import numpy as np
 
+from ._cell_kernels import cells_near_box, cells_near_sector, splat_box_cells, splat_sector_cells
 from ._geometry import Grid
-from ._kernels import scan_convert_trilinear
+from ._kernels import (
+    keep_box,
+    keep_plane,
+    keep_sector,
+    scan_convert_trilinear,
+    transform_splat_field,
+    transform_splat_plane,
+    transform_splat_sector,
+)
 
 __all__ = ["PlaneProbe", "SectorProbe", "MatrixProbe", "Probe"]
 
@@ -35,8 +50,81 @@ def _pair(v, name: str) -> tuple[float, float]:
     return v
 
 
+class _BeamProbe:
+    """What every probe answers, with the defaults of a Cartesian probe: beams parallel to z,
+    the beam grid the image grid, scatterers kept and splatted in a probe-frame box.
+
+    Rigid transforms come as ``R`` (3, 3) and ``t`` (3,), contiguous float64: a tissue point
+    ``p`` lies at ``R p + t`` in the probe frame. ``lo``, ``hi`` bound the probe-frame box
+    (x, y, z) that reaches the image.
+    """
+
+    #: the tissue echo of a probe translated laterally or in elevation can be sampled from a
+    #: cached 3D field of it (a plane probe: its PSF and phase depend on depth only)
+    field_sliceable = False
+
+    @property
+    def beam_grid(self) -> Grid:
+        return self.grid
+
+    def beam_direction(self, p: np.ndarray) -> np.ndarray:
+        out = np.zeros_like(p)
+        out[:, 2] = 1.0
+        return out
+
+    def range_of_rows(self) -> np.ndarray:
+        return self.beam_grid.axis_coords(0)
+
+    def range_mm(self, p: np.ndarray) -> np.ndarray:
+        """Distance of probe-frame points (N, 3) from the probe's origin, shape (N,)."""
+        return np.linalg.norm(p, axis=1)
+
+    def in_beams(self, p: np.ndarray) -> np.ndarray:
+        """Which probe-frame points (N, 3) the beams reach beyond the image grid's own bounds:
+        all of them."""
+        return np.ones(len(p), bool)
+
+    def inside_mask(self) -> np.ndarray | None:
+        """The image voxels the beams cover; None when they cover the whole grid."""
+        return None
+
+    def scan_convert(self, img: np.ndarray) -> np.ndarray:
+        return img
+
+    def to_image(self, beam_image: np.ndarray) -> np.ndarray:
+        """The displayed image of log-compressed beam data: scan-converted."""
+        return self.scan_convert(beam_image)
+
+    def keep_scatterers(self, pos, R, t, lo, hi, sigma_elevation_rows) -> np.ndarray:
+        """Which tissue scatterers (N, 3) can reach the image, shape (N,) bool."""
+        return keep_box(pos, R, t, lo, hi)
+
+    def splat_scatterers(self, pos, amp, R, t, lo, hi, two_k, sigma_elevation_rows,
+                         out) -> None:
+        """Add the echo phasors ``amp * exp(-2j k z)`` of tissue scatterers to the beam-grid
+        IQ ``out`` (splatted multilinearly, in the beam grid's (row, ...) order)."""
+        bg = self.beam_grid
+        transform_splat_field(pos, amp, R, t, lo, hi, np.asarray(bg.origin_mm),
+                              np.asarray(bg.spacing_mm), two_k, out)
+
+    def cells_near(self, centres, reach, R, t, lo, hi) -> np.ndarray:
+        """Which tissue cells (centres (C, 3)) hold points within ``reach`` mm of their centre
+        that can reach the image, shape (C,) bool."""
+        return cells_near_box(centres, reach, R, t, np.asarray(lo, float),
+                              np.asarray(hi, float))
+
+    def splat_cells(self, xyz, amp, slots, n_per_cell, R, t, lo, hi, two_k, out) -> None:
+        """:meth:`splat_scatterers` over the cached cells ``slots`` of a
+        :class:`synth._cell_cache.CellCache` (positions ``xyz`` as (3, N))."""
+        bg = self.beam_grid
+        splat_box_cells(xyz, amp, slots, n_per_cell, R, t, np.asarray(lo, float),
+                        np.asarray(hi, float), np.asarray(bg.origin_mm, float),
+                        np.asarray(bg.spacing_mm, float), two_k, out)
+
+
+
 @dataclass(frozen=True)
-class PlaneProbe:
+class PlaneProbe(_BeamProbe):
     """A linear array imaging the plane y = 0 of the probe frame.
 
     ``spacing_mm`` is (depth, lateral) pixel spacing. The image covers lateral
@@ -58,6 +146,7 @@ class PlaneProbe:
             raise ValueError(f"PlaneProbe.depth_start_mm must be >= 0, got {self.depth_start_mm}")
 
     ndim = 2
+    field_sliceable = True
 
     @cached_property
     def grid(self) -> Grid:
@@ -66,10 +155,6 @@ class PlaneProbe:
         nx = int(round(self.width_mm / dx))
         return Grid((nz, nx), (dz, dx), (self.depth_start_mm, -self.width_mm / 2.0))
 
-    @property
-    def beam_grid(self) -> Grid:
-        return self.grid
-
     def to_beam_index(self, p: np.ndarray) -> np.ndarray:
         """Probe-frame points (N, 3) -> fractional (z, x) indices (N, 2)."""
         g = self.grid
@@ -77,13 +162,9 @@ class PlaneProbe:
             [(p[:, 2] - g.origin_mm[0]) / g.spacing_mm[0],
              (p[:, 0] - g.origin_mm[1]) / g.spacing_mm[1]], axis=1)
 
-    def beam_direction(self, p: np.ndarray) -> np.ndarray:
-        out = np.zeros_like(p)
-        out[:, 2] = 1.0
-        return out
-
-    def range_of_rows(self) -> np.ndarray:
-        return self.grid.axis_coords(0)
+    def range_mm(self, p: np.ndarray) -> np.ndarray:
+        """Depth z of probe-frame points (N, 3), shape (N,)."""
+        return p[:, 2]
 
     def pixel_size_mm(self) -> tuple[np.ndarray, ...]:
         """Physical size of a beam-grid step per axis, per depth row."""
@@ -91,8 +172,18 @@ class PlaneProbe:
         n = self.grid.shape[0]
         return np.full(n, dz), np.full(n, dx)
 
-    def scan_convert(self, img: np.ndarray) -> np.ndarray:
-        return img
+    def keep_scatterers(self, pos, R, t, lo, hi, sigma_elevation_rows) -> np.ndarray:
+        """Inside the box and within 3 sigma of the elevation beam at their depth."""
+        bg = self.beam_grid
+        return keep_plane(pos, R, t, lo, hi, bg.origin_mm[0], bg.spacing_mm[0],
+                          sigma_elevation_rows)
+
+    def splat_scatterers(self, pos, amp, R, t, lo, hi, two_k, sigma_elevation_rows,
+                         out) -> None:
+        """Image the plane y = 0: each scatterer weighted by the elevation beam profile."""
+        bg = self.beam_grid
+        transform_splat_plane(pos, amp, R, t, lo, hi, np.asarray(bg.origin_mm),
+                              np.asarray(bg.spacing_mm), two_k, sigma_elevation_rows, out)
 
     def region_box(self, margin_mm: float, elevation_mm: float) -> tuple[np.ndarray, np.ndarray]:
         """Probe-frame box (lo, hi) holding every scatterer that can reach the image."""
@@ -106,7 +197,7 @@ class PlaneProbe:
 
 
 @dataclass(frozen=True)
-class MatrixProbe:
+class MatrixProbe(_BeamProbe):
     """A Cartesian 3D probe: beams parallel to z on a regular (z, y, x) grid."""
 
     shape: tuple[int, int, int] = (128, 128, 128)
@@ -126,27 +217,12 @@ class MatrixProbe:
         return Grid(self.shape, self.spacing_mm,
                     (self.depth_start_mm, -ny * dy / 2.0, -nx * dx / 2.0))
 
-    @property
-    def beam_grid(self) -> Grid:
-        return self.grid
-
     def to_beam_index(self, p: np.ndarray) -> np.ndarray:
         return self.grid.points_to_index(p)
-
-    def beam_direction(self, p: np.ndarray) -> np.ndarray:
-        out = np.zeros_like(p)
-        out[:, 2] = 1.0
-        return out
-
-    def range_of_rows(self) -> np.ndarray:
-        return self.grid.axis_coords(0)
 
     def pixel_size_mm(self) -> tuple[np.ndarray, ...]:
         n = self.shape[0]
         return tuple(np.full(n, s) for s in self.spacing_mm)
-
-    def scan_convert(self, vol: np.ndarray) -> np.ndarray:
-        return vol
 
     def region_box(self, margin_mm: float, elevation_mm: float = 0.0):
         g = self.grid
@@ -159,7 +235,7 @@ class MatrixProbe:
 
 
 @dataclass(frozen=True)
-class SectorProbe:
+class SectorProbe(_BeamProbe):
     """Zhao 2013's motorised 3D probe: 55 planes x 64 beams x 160 samples.
 
     Beams leave a common apex at the origin of the probe frame; beam (theta, phi) points along
@@ -221,8 +297,10 @@ class SectorProbe:
     def beam_direction(self, p: np.ndarray) -> np.ndarray:
         return p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-9)
 
-    def range_of_rows(self) -> np.ndarray:
-        return self.beam_grid.axis_coords(0)
+    def in_beams(self, p: np.ndarray) -> np.ndarray:
+        """Which probe-frame points (N, 3) lie inside the beam grid (range, tilt, angle)."""
+        bi = self.to_beam_index(p)
+        return np.all((bi >= 0) & (bi <= np.asarray(self.beam_grid.shape) - 1), axis=1)
 
     def pixel_size_mm(self) -> tuple[np.ndarray, ...]:
         g = self.beam_grid
@@ -259,11 +337,42 @@ class SectorProbe:
                                int(strides[0]), int(strides[1]), out)
         return out.reshape(self.output_shape)
 
+    def to_image(self, beam_image: np.ndarray) -> np.ndarray:
+        """The scan-converted volume rounded to 8 bits."""
+        return np.clip(np.rint(self.scan_convert(beam_image)), 0, 255).astype(np.uint8)
+
     def inside_mask(self) -> np.ndarray:
+        """The output voxels inside the sector."""
         out_index = self._scan_table[0]
         m = np.zeros(int(np.prod(self.output_shape)), bool)
         m[out_index] = True
         return m.reshape(self.output_shape)
+
+    def keep_scatterers(self, pos, R, t, lo, hi, sigma_elevation_rows) -> np.ndarray:
+        """Inside the beam grid (range, tilt and sector angle)."""
+        bg = self.beam_grid
+        return keep_sector(pos, R, t, np.asarray(bg.origin_mm), np.asarray(bg.spacing_mm),
+                           np.asarray(bg.shape, np.float64))
+
+    def splat_scatterers(self, pos, amp, R, t, lo, hi, two_k, sigma_elevation_rows,
+                         out) -> None:
+        """Splat onto the (range, tilt, sector-angle) beam grid."""
+        bg = self.beam_grid
+        transform_splat_sector(pos, amp, R, t, np.asarray(bg.origin_mm),
+                               np.asarray(bg.spacing_mm), two_k, out)
+
+    def cells_near(self, centres, reach, R, t, lo, hi) -> np.ndarray:
+        """Cells that can reach the beam grid (range, tilt and sector angle)."""
+        bg = self.beam_grid
+        return cells_near_sector(centres, reach, R, t, np.asarray(bg.origin_mm, float),
+                                 np.asarray(bg.spacing_mm, float),
+                                 np.asarray(bg.shape, np.float64))
+
+    def splat_cells(self, xyz, amp, slots, n_per_cell, R, t, lo, hi, two_k, out) -> None:
+        """Splat the cached cells onto the (range, tilt, sector-angle) beam grid."""
+        bg = self.beam_grid
+        splat_sector_cells(xyz, amp, slots, n_per_cell, R, t, np.asarray(bg.origin_mm, float),
+                           np.asarray(bg.spacing_mm, float), two_k, out)
 
     def region_box(self, margin_mm: float, elevation_mm: float = 0.0):
         g = self.grid

@@ -10,7 +10,6 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from ._geometry import Grid, apply_transform, invert_rigid
-from ._probe import SectorProbe
 from ._scanner import Scanner
 from ._sequence import Sequence
 
@@ -160,10 +159,7 @@ def _labels(scanner: Scanner, world, pts, tan, probe_pose, tissue_pose, modality
     if nd == 3:
         tip, entry, direction = tip3, entry3, dir3 / np.linalg.norm(dir3)
         visible = bool(grid.contains(tip3[None])[0]) and len(pts) > 0
-        if isinstance(scanner.probe, SectorProbe):
-            bi = scanner.probe.to_beam_index(tip3[None])[0]
-            visible &= bool(np.all((bi >= 0) & (bi <= np.asarray(scanner.probe.beam_grid.shape)
-                                                    - 1)))
+        visible &= bool(scanner.probe.in_beams(tip3[None])[0])
     else:
         xz = np.array([[0, 2]])
         entry = entry3[xz[0]]
@@ -213,7 +209,7 @@ def render_sequence(scanner: Scanner, traj: Trajectory, modality: str, rng: np.r
     tip3s = np.zeros((T, 3))
     crs = np.full(T, np.nan)
     cl = np.zeros((T, N_CENTERLINE, 3))
-    valid = scanner.probe.inside_mask() if isinstance(scanner.probe, SectorProbe) else None
+    valid = scanner.probe.inside_mask()
     gain = 1.0
     if target_cr is not None and not scanner.zhao_mode:
         gain = _calibrate_needle_gain(scanner, traj, target_cr, rng, step)
@@ -341,7 +337,7 @@ def _calibrate_needle_gain(scanner, traj, target_cr, rng, step) -> float:
     iq = scanner.tissue_iq(invert_rigid(pp) @ tp)
     echo = scanner.needle_iq(pts, tan, step)
     inp = pts if grid.ndim == 3 else _in_plane_samples(pts, r)[:, [0, 2]]
-    valid = scanner.probe.inside_mask() if isinstance(scanner.probe, SectorProbe) else None
+    valid = scanner.probe.inside_mask()
     from ._scanner import log_compress
 
     def cr(g):

@@ -38,16 +38,7 @@ from ._blur import blur_const as _blur_const
 from ._cell_cache import CellCache, cache_bytes, near_cells
 from ._geometry import apply_transform, invert_rigid
 from ._imaging import ImagingParams, display_mask, log_compress, speckle_log_mean_db
-from ._kernels import (
-    keep_box,
-    keep_plane,
-    keep_sector,
-    splat,
-    transform_splat_field,
-    transform_splat_plane,
-    transform_splat_sector,
-)
-from ._probe import PlaneProbe, SectorProbe
+from ._kernels import splat, transform_splat_field
 from ._world import World
 
 __all__ = ["ImagingParams", "Scanner", "RenderedFrame", "NeedleEcho", "log_compress",
@@ -166,7 +157,7 @@ class Scanner:
                                     for k in range(1, p.compound_looks)]
         self._look_cache: dict = {}
         self._face_reverb = self._face_reverb_iq()
-        self._mask = display_mask(probe.grid, p) if isinstance(probe, PlaneProbe) else None
+        self._mask = display_mask(probe.grid, p)  # None for 3D grids
 
     @property
     def field_cache_size(self) -> int:
@@ -198,7 +189,7 @@ class Scanner:
             return self._cache_iq
         last = self._last_M
         self._last_M = M
-        if (isinstance(self.probe, PlaneProbe) and last is not None
+        if (self.probe.field_sliceable and last is not None
                 and np.allclose(M[:3, :3], last[:3, :3], atol=1e-9)
                 and abs(M[2, 3] - last[2, 3]) < 1e-9):
             iq = self._field_slice(M)
@@ -263,7 +254,7 @@ class Scanner:
         if self.probe.ndim == 3:
             self._prepare_cells(Ms)
             return
-        if not isinstance(self.probe, PlaneProbe) or len(Ms) < 2:
+        if not self.probe.field_sliceable or len(Ms) < 2:
             return
         R0, tz0 = Ms[0, :3, :3], Ms[0, 2, 3]
         if not (np.allclose(Ms[:, :3, :3], R0, atol=1e-9) and np.allclose(Ms[:, 2, 3], tz0)):
@@ -447,30 +438,14 @@ class Scanner:
         pos, amp = tissue.scatterers_in_box(tlo, thi)
         R = np.ascontiguousarray(M[:3, :3], dtype=np.float64)
         t = np.ascontiguousarray(M[:3, 3], dtype=np.float64)
-        bg = probe.beam_grid
+        sig_el = self._sig_el_mm.astype(np.float64)
         # keep what the probe can see before evaluating the scattering map on it
-        if isinstance(probe, PlaneProbe):
-            keep = keep_plane(pos, R, t, lo, hi, bg.origin_mm[0], bg.spacing_mm[0],
-                              self._sig_el_mm.astype(np.float64))
-        elif isinstance(probe, SectorProbe):
-            keep = keep_sector(pos, R, t, np.asarray(bg.origin_mm), np.asarray(bg.spacing_mm),
-                               np.asarray(bg.shape, np.float64))
-        else:
-            keep = keep_box(pos, R, t, lo, hi)
+        keep = probe.keep_scatterers(pos, R, t, lo, hi, sig_el)
         pos = pos[keep]
         amp = tissue.modulate(pos, amp[keep])
         iq = np.zeros((*self._shape, 2), np.float32)
         two_k = 2.0 * p.k0_per_mm  # exact two-way phase of every scatterer
-        if isinstance(probe, PlaneProbe):
-            transform_splat_plane(pos, amp, R, t, lo, hi, np.asarray(bg.origin_mm),
-                                  np.asarray(bg.spacing_mm), two_k,
-                                  self._sig_el_mm.astype(np.float64), iq)
-        elif isinstance(probe, SectorProbe):
-            transform_splat_sector(pos, amp, R, t, np.asarray(bg.origin_mm),
-                                   np.asarray(bg.spacing_mm), two_k, iq)
-        else:
-            transform_splat_field(pos, amp, R, t, lo, hi, np.asarray(bg.origin_mm),
-                                  np.asarray(bg.spacing_mm), two_k, iq)
+        probe.splat_scatterers(pos, amp, R, t, lo, hi, two_k, sig_el, iq)
         return iq
 
     # -- needle ---------------------------------------------------------------------------
@@ -507,7 +482,7 @@ class Scanner:
         spec_w = spec.diffuse_floor + (1.0 - spec.diffuse_floor) * np.exp(
             -0.5 * (np.rad2deg(psi) / spec.specular_width_deg) ** 2)
         spec_w[~ok] = spec.diffuse_floor
-        depth = pts[:, 2] if isinstance(probe, PlaneProbe) else np.linalg.norm(pts, axis=1)
+        depth = probe.range_mm(pts)
         sig_px = [np.interp(depth, self._rows_mm, s) for s in self._sig_px]
         px = [np.interp(depth, self._rows_mm, s) for s in self._px]
         # Strength per sample: 1 mm of shaft gathered in one resolution cell peaks at `echo`;
@@ -601,10 +576,7 @@ class Scanner:
                 e = self.envelope(self.look_iq(tissue_to_probe, k), echo, rng, needle_gain)
                 inten += e * e
             env = np.sqrt(inten / np.float32(self.params.compound_looks))
-        img = log_compress(env, self.params)
-        img = self.probe.scan_convert(img)
-        if isinstance(self.probe, SectorProbe):
-            img = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        img = self.probe.to_image(log_compress(env, self.params))
         if self._mask is not None:
             img[~self._mask] = 0
         return RenderedFrame(image=img, envelope=env, needle_gain=needle_gain)
