@@ -20,6 +20,7 @@ from ._geometry import (
 )
 from ._preview import preview_image, save_preview
 from ._probe import MatrixProbe, PlaneProbe, SectorProbe
+from ._progress import Progress
 from ._render import Trajectory, contrast_ratio, render_sequence, tube_indices
 from ._scanner import ImagingParams, Scanner, display_mask, log_compress, speckle_log_mean_db
 from ._scenarios import SCENARIOS, describe, generate, random_scattering_map, scenario_params
@@ -51,7 +52,7 @@ from ._world import (
 
 __all__ = [
     "GAUGE_OUTER_DIAMETER_MM", "Grid", "ImagingParams", "MODALITIES", "MatrixProbe",
-    "NeedlePath", "NeedleSpec", "PlaneProbe", "RAYLEIGH_LOG_STD_DB", "RAYLEIGH_SNR",
+    "NeedlePath", "NeedleSpec", "PlaneProbe", "Progress", "RAYLEIGH_LOG_STD_DB", "RAYLEIGH_SNR",
     "SCENARIOS", "Scanner", "ScatteringMap", "SectorProbe", "Sequence", "SequenceFileError",
     "Tissue", "Trajectory", "World", "apply_transform", "contrast_ratio", "describe",
     "display_mask", "distance_to_polyline", "envelope_snr", "speckle_log_mean_db",

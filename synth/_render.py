@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass
 
@@ -10,6 +9,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from ._geometry import Grid, apply_transform, invert_rigid
+from ._progress import Progress
 from ._scanner import Scanner
 from ._sequence import Sequence
 
@@ -27,27 +27,6 @@ class Trajectory:
     insertion_mm: np.ndarray  # (T,) arc length of the tip from the path's start
     probe_pose: np.ndarray  # (T, 4, 4) probe -> world
     tissue_pose: np.ndarray  # (T, 4, 4) tissue -> world
-
-
-class Progress:
-    """A dependency-free progress bar on stderr (silent when disabled)."""
-
-    def __init__(self, total: int, label: str, enabled: bool = True):
-        self.total, self.label, self.enabled = total, label, enabled
-        self.t0 = time.perf_counter()
-        self.n = 0
-
-    def update(self, n: int = 1) -> None:
-        self.n += n
-        if not self.enabled:
-            return
-        frac = self.n / max(self.total, 1)
-        bar = "#" * int(30 * frac)
-        rate = self.n / max(time.perf_counter() - self.t0, 1e-9)
-        sys.stderr.write(f"\r{self.label} [{bar:<30}] {self.n}/{self.total} {rate:6.1f} frames/s")
-        if self.n >= self.total:
-            sys.stderr.write("\n")
-        sys.stderr.flush()
 
 
 def tube_distances(grid: Grid, pts: np.ndarray, radius_mm: float, exact: bool = True):
