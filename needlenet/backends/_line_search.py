@@ -34,11 +34,15 @@ class LineSearchParams:
     echo of the thinnest needle, 25 G = 0.5 mm, and 4 times fewer pixels than a 0.1 mm frame).
     ``max_points``: the strongest pixels that vote. ``angle_step_deg`` and ``rho_bin_mm``:
     the Hough accumulator's resolution before refinement. ``peaks``: Hough peaks whose
-    segments are compared (a long tissue line may out-vote a short needle). ``band_mm``: the
-    half-widths of the two refinement passes (a 14 G needle's echo with its reverberations is
-    about 2 mm thick). ``profile_half_width_mm``: the segment profile takes the maximum across
-    this half-width, so that a line off by a pixel still reads the echo. ``gap_mm``: gaps of
-    the needle's echo bridged along the line (a shaft partly out of the slice fades in places).
+    segments are compared (a long tissue line may out-vote a short needle). ``votes``: how
+    often the peaks are voted, each time without the pixels of the lines rejected before.
+    ``band_mm``: the half-widths of the two refinement passes (a 14 G needle's echo with its
+    reverberations is about 2 mm thick). ``explained_mm``: pixels this close to a rejected
+    line are set aside for the next vote (the needle's echo band, and the 2 mm by which two
+    Hough peaks must differ). ``profile_half_width_mm``: the segment profile takes the maximum
+    across this half-width, so that a line off by a pixel still reads the echo. ``gap_mm``:
+    gaps of the needle's echo bridged along the line (a shaft partly out of the slice fades in
+    places).
     """
 
     work_spacing_mm: float = 0.2
@@ -46,16 +50,19 @@ class LineSearchParams:
     angle_step_deg: float = 2.0
     rho_bin_mm: float = 0.4
     peaks: int = 3
+    votes: int = 3
     band_mm: tuple[float, float] = (1.5, 0.8)
+    explained_mm: float = 2.0
     profile_half_width_mm: float = 0.4
     gap_mm: float = 2.0
 
     def __post_init__(self) -> None:
-        for name in ("work_spacing_mm", "angle_step_deg", "rho_bin_mm", "gap_mm"):
+        for name in ("work_spacing_mm", "angle_step_deg", "rho_bin_mm", "gap_mm",
+                     "explained_mm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        if self.max_points < 2 or self.peaks < 1:
-            raise ValueError("max_points must be >= 2 and peaks >= 1")
+        if self.max_points < 2 or self.peaks < 1 or self.votes < 1:
+            raise ValueError("max_points must be >= 2, peaks and votes >= 1")
 
 
 @dataclass(frozen=True)
@@ -261,7 +268,12 @@ def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
                      is_valid=None, priority=None) -> NeedleLine:
     """The best needle segment on the map: Hough peaks over the pixels at or above half of
     ``level`` (the strongest ``max_points`` of them), each refined and read along its line;
-    the segment with the largest evidence sum wins.
+    the segment with the largest evidence sum wins. When every segment read is rejected by
+    ``is_valid``, the pixels within ``explained_mm`` of their lines are set aside and the
+    lines are voted again from the rest, up to ``votes`` times (the progressive Hough
+    transform of Matas et al. 2000 removes a found line's points the same way): a broad bright
+    interface that holds most of the strongest pixels, and so every peak of one vote, does
+    not hide a needle beside it.
 
     ``thetas_rad``: the line directions searched (default every ``angle_step_deg`` in [0,
     pi)). ``prior``: (point, rho half-window mm): search only lines within that offset of
@@ -276,39 +288,48 @@ def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
     cand = np.flatnonzero(v.ravel() >= 0.5 * level)
     if cand.size < 2:
         return NeedleLine(False, f"fewer than two pixels at or above {0.5 * level:g}")
-    vals = v.ravel()[cand]
-    if cand.size > p.max_points:
-        keep = np.argpartition(vals, -p.max_points)[-p.max_points:]
-        cand, vals = cand[keep], vals[keep]
     rows, cols = np.divmod(cand, v.shape[1])
-    pts = wm.points(rows.astype(float), cols.astype(float))
+    pts_all = wm.points(rows.astype(float), cols.astype(float))
+    vals_all = v.ravel()[cand]
     if thetas_rad is None:
         thetas_rad = np.deg2rad(np.arange(0.0, 180.0, p.angle_step_deg))
+    thetas_rad = np.asarray(thetas_rad, float)
     window = None
     if prior is not None:
         c0, half = prior
-        r0 = np.asarray(c0, float) @ _normal(np.asarray(thetas_rad, float)).T
+        r0 = np.asarray(c0, float) @ _normal(thetas_rad).T
         window = (float(r0.min()) - half, float(r0.max()) + half)
-    peaks = hough_peaks(pts, vals.astype(float), np.asarray(thetas_rad, float), p.rho_bin_mm,
-                        p.peaks, window)
+
     def rank(seg):
         return (priority(seg) if priority is not None else 0, seg.score)
 
     best = NeedleLine(False, "no Hough peak")
     rejected = None
-    for th, rho, _ in peaks:
-        fit = refine_line(pts, vals.astype(float), th, rho, p.band_mm)
-        if fit is None:
-            continue
-        seg = line_segment(wm, fit[0], fit[1], level, p)
-        why = is_valid(seg) if seg and is_valid is not None else ""
-        if why:
-            if rejected is None or seg.score > rejected[0].score:
-                rejected = (seg, why)
-        elif seg and (not best or rank(seg) > rank(best)):
-            best = seg
-        elif not best and not seg:
-            best = seg
+    left = np.ones(len(cand), bool)  # pixels no rejected line explains
+    for _ in range(p.votes):
+        idx = np.flatnonzero(left)
+        if idx.size < 2:
+            break
+        if idx.size > p.max_points:
+            idx = idx[np.argpartition(vals_all[idx], -p.max_points)[-p.max_points:]]
+        pts, vals = pts_all[idx], vals_all[idx].astype(float)
+        for th, rho, _ in hough_peaks(pts, vals, thetas_rad, p.rho_bin_mm, p.peaks, window):
+            fit = refine_line(pts, vals, th, rho, p.band_mm)
+            if fit is None:
+                continue
+            seg = line_segment(wm, fit[0], fit[1], level, p)
+            why = is_valid(seg) if seg and is_valid is not None else ""
+            if why:
+                if rejected is None or seg.score > rejected[0].score:
+                    rejected = (seg, why)
+                off = np.abs((pts_all - fit[0]) @ np.array([-fit[1][1], fit[1][0]]))
+                left &= off > p.explained_mm
+            elif seg and (not best or rank(seg) > rank(best)):
+                best = seg
+            elif not best and not seg:
+                best = seg
+        if best or rejected is None:
+            break
     if not best and rejected is not None:
         return NeedleLine(False, rejected[1], profile=rejected[0].profile)
     return best

@@ -102,3 +102,30 @@ def test_nothing_found_on_a_map_below_the_level():
     m = rng.uniform(0.0, 0.2, (100, 100)).astype(np.float32)
     seg = find_needle_line(WorkingMap(m, 0.0, 0.0, 0.2), 0.5, LineSearchParams())
     assert not seg and "fewer than two pixels" in seg.reason
+
+
+def test_a_needle_beside_a_broad_interface_is_found_on_a_later_vote():
+    """A bright band running edge to edge (an interface, 2.2 mm thick) holds every one of the
+    strongest pixels, so every peak of the first vote lies on it and is rejected; the needle
+    (a 15 mm segment, weaker, 6 mm away) is found once the band's pixels are set aside."""
+    step = 0.2
+    m = np.zeros((200, 200), np.float32)
+    m = np.maximum(m, _draw_segment(m.shape, (0.0, 10.0), (39.8, 30.0), step, 1.0, 11))
+    a, b = (4.0, 0.0), (16.0, 9.0)  # a needle entering through the top edge
+    m = np.maximum(m, _draw_segment(m.shape, a, b, step, 0.7, 3))
+    wm = WorkingMap(m, 0.0, 0.0, step)
+
+    def is_valid(seg):  # the tracker rejects the interface (it shows no tip)
+        d = np.array([39.8, 20.0]) / np.hypot(39.8, 20.0)
+        n = np.array([-d[1], d[0]])
+        off = [abs(n @ np.subtract(e, (0.0, 10.0))) for e in (seg.start_mm, seg.end_mm)]
+        return "interface" if max(off) < 1.5 else ""
+
+    first_only = find_needle_line(wm, 0.5, LineSearchParams(max_points=400, votes=1),
+                                  is_valid=is_valid)
+    assert not first_only and first_only.reason == "interface"
+    seg = find_needle_line(wm, 0.5, LineSearchParams(max_points=400), is_valid=is_valid)
+    assert seg
+    ends = [seg.start_mm, seg.end_mm]
+    for p in (a, b):
+        assert min(np.linalg.norm(np.subtract(p, e)) for e in ends) < 1.0
