@@ -40,6 +40,8 @@ from __future__ import annotations
 import math
 import os
 import re
+import shutil
+import tempfile
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,8 +51,16 @@ import numpy as np
 from ._atomic import atomic_write
 from ._errors import RecordingError
 from ._gray import to_gray_uint8
-from ._lazy import ZlibStream, inflated_frames, mapped_frames
+from ._lazy import ZlibStream, inflated_frames, is_frame_stack, mapped_frames
 from ._limits import check_allocation, check_frame_shape
+from ._plus_data import (
+    check_inflated,
+    compressed_span,
+    first_frame,
+    header_numbers,
+    pixel_bytes,
+    raw_span,
+)
 
 __all__ = ["PlusSequence", "read_plus", "write_plus", "plus_outputs", "ORIENTATIONS",
            "PLUS_SUFFIXES"]
@@ -65,7 +75,6 @@ _ELEMENT_TYPES = {
 }
 _FRAME_FIELD = re.compile(r"^Seq_Frame(\d+)_(\w+)$")
 _MAX_LINE = 1 << 22  # a header line longer than this is not a header
-_MAX_INFLATION = 1032  # deflate inflates at most ~1032:1 (a 258-byte match costs >= 2 bits)
 
 
 @dataclass
@@ -137,139 +146,11 @@ def _read_header(fh, src: str) -> tuple[dict[str, str], int]:
             return header, fh.tell()
 
 
-def _numbers(header: dict, key: str, src: str, count: int | None = None,
-             kind=float) -> np.ndarray:
-    try:
-        v = np.array([kind(s) for s in header[key].split()])
-    except ValueError:
-        raise RecordingError(f"{src}: field {key} = {header[key]!r} is not a list of numbers"
-                             ) from None
-    if count is not None and v.size != count:
-        raise RecordingError(f"{src}: field {key} has {v.size} values, expected {count}")
-    if kind is float and not np.all(np.isfinite(v)):
-        raise RecordingError(f"{src}: field {key} = {header[key]!r} is not finite")
-    return v
-
-
 def _flag(header: dict, key: str, src: str) -> bool:
     v = header.get(key, "False").strip().lower()
     if v not in ("true", "false", "1", "0"):
         raise RecordingError(f"{src}: field {key} = {header[key]!r} must be True or False")
     return v in ("true", "1")
-
-
-def _data_file(path: Path, src: str, header: dict, offset: int) -> tuple[Path, int]:
-    """The file holding the pixels and where they start in it (-1: they are its last
-    bytes)."""
-    data_file = header["ElementDataFile"]
-    if data_file == "LOCAL":
-        return path, offset
-    if data_file.upper() == "LIST" or "%" in data_file or len(data_file.split()) > 1:
-        raise RecordingError(f"{src}: ElementDataFile = {data_file!r}: one data file per "
-                             "frame is not supported; write the sequence as one .mha")
-    target = (path.parent / data_file)
-    if not target.is_file():
-        raise RecordingError(f"{src}: ElementDataFile {data_file}: no such file next to "
-                             "the header")
-    skip = int(_numbers(header, "HeaderSize", src, 1, int)[0]) if "HeaderSize" in \
-        header else 0
-    return target, skip
-
-
-def _raw_span(path: Path, src: str, header: dict, offset: int,
-              nbytes: int) -> tuple[Path, int] | None:
-    """The file and offset of ``nbytes`` of uncompressed pixels, or None when the file does
-    not hold exactly that many after the header (:func:`_pixel_bytes` says how)."""
-    try:
-        target, skip = _data_file(path, src, header, offset)
-    except RecordingError:
-        return None
-    size = os.path.getsize(target)
-    start = skip if skip >= 0 else size - nbytes
-    return (target, start) if start >= 0 and size - start == nbytes else None
-
-
-def _compressed_span(path: Path, src: str, header: dict, offset: int,
-                     nbytes: int) -> tuple[Path, int, int]:
-    """The file holding the zlib stream of the pixels, where it starts and its length in
-    bytes, checked against ``CompressedDataSize`` and what zlib can inflate to ``nbytes``."""
-    target, skip = _data_file(path, src, header, offset)
-    size = os.path.getsize(target)
-    tsrc = str(target)
-    csize = int(_numbers(header, "CompressedDataSize", src, 1, int)[0]) \
-        if "CompressedDataSize" in header else None
-    if csize is not None and csize < 1:
-        raise RecordingError(f"{src}: CompressedDataSize = {csize} must be positive")
-    start = skip if skip >= 0 else size - (csize or 0)
-    avail = size - start
-    if csize is not None and avail < csize:
-        raise RecordingError(
-            f"{tsrc}: truncated: CompressedDataSize = {csize} but only {avail} bytes "
-            "of pixel data follow the header")
-    if start < 0 or avail < 1:
-        raise RecordingError(f"{tsrc}: no compressed pixel data after the header")
-    if nbytes > _MAX_INFLATION * (csize if csize is not None else avail) + 1024:
-        raise RecordingError(
-            f"{tsrc}: DimSize/ElementType need {nbytes} bytes of pixels, more than "
-            f"zlib can inflate from the {csize or avail} compressed bytes given; "
-            "damaged header?")
-    return target, start, csize if csize is not None else avail
-
-
-def _inflated_size_error(tsrc: str, nbytes: int, got: int) -> RecordingError:
-    return RecordingError(
-        f"{tsrc}: the header's DimSize/ElementType need {nbytes} bytes of pixels "
-        f"but the compressed data holds {'more' if got > nbytes else got}"
-        + ("" if got > nbytes else " (truncated file?)"))
-
-
-def _check_inflated(stream: ZlibStream, nbytes: int, tsrc: str) -> None:
-    """The stream inflates to exactly ``nbytes``: counted 1 MiB at a time, kept nowhere."""
-    total = 0
-    try:
-        while total <= nbytes:
-            piece = stream.next_bytes(min(1 << 20, nbytes + 1 - total))
-            if not piece:
-                break
-            total += len(piece)
-    except zlib.error as exc:
-        raise RecordingError(f"{tsrc}: compressed pixel data is damaged ({exc})") from None
-    if total != nbytes:
-        raise _inflated_size_error(tsrc, nbytes, total)
-    stream.restart()
-
-
-def _pixel_bytes(path: Path, src: str, header: dict, offset: int, nbytes: int,
-                 compressed: bool) -> bytes:
-    """The pixel data as bytes, checking sizes against the header."""
-    if compressed:
-        target, start, length = _compressed_span(path, src, header, offset, nbytes)
-        with open(target, "rb") as fh:
-            fh.seek(start)
-            blob = fh.read(length)
-        try:
-            d = zlib.decompressobj()
-            out = d.decompress(blob, nbytes + 1)
-            if len(out) <= nbytes and not d.eof:
-                out += d.flush()
-        except zlib.error as exc:
-            raise RecordingError(f"{target}: compressed pixel data is damaged ({exc})"
-                                 ) from None
-        if len(out) != nbytes:
-            raise _inflated_size_error(str(target), nbytes, len(out))
-        return out
-    target, skip = _data_file(path, src, header, offset)
-    size = os.path.getsize(target)
-    start = skip if skip >= 0 else size - nbytes
-    avail = size - start
-    if avail != nbytes or start < 0:
-        what = "truncated" if avail < nbytes else "sizes do not match the data"
-        raise RecordingError(
-            f"{target}: {what}: DimSize/ElementType/ElementNumberOfChannels need {nbytes} "
-            f"bytes of pixels, the file has {max(avail, 0)} after the header")
-    with open(target, "rb") as fh:
-        fh.seek(start)
-        return fh.read(nbytes)
 
 
 def _orient(images: np.ndarray, code: str, volume: bool, src: str) -> np.ndarray:
@@ -287,14 +168,6 @@ def _orient(images: np.ndarray, code: str, volume: bool, src: str) -> np.ndarray
     return images
 
 
-def _first_frame(span: tuple[Path, int], shape: tuple, dtype: np.dtype) -> np.ndarray:
-    """The first frame's raw pixels, ``(1, *shape[1:])``."""
-    n = math.prod(shape[1:]) * dtype.itemsize
-    with open(span[0], "rb") as fh:
-        fh.seek(span[1])
-        return np.frombuffer(fh.read(n), dtype).reshape((1, *shape[1:]))
-
-
 def read_plus(path: str | os.PathLike) -> PlusSequence:
     """Read a PLUS sequence metafile (``.mha`` with the pixels inside, or ``.mhd`` and its
     ``.raw``), compressed or not; raise :class:`RecordingError` naming the file and field."""
@@ -309,11 +182,11 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
     for key in ("NDims", "DimSize", "ElementType"):
         if key not in header:
             raise RecordingError(f"{src}: header field {key} is missing")
-    ndims = int(_numbers(header, "NDims", src, 1, int)[0])
+    ndims = int(header_numbers(header, "NDims", src, 1, int)[0])
     if ndims not in (2, 3, 4):
         raise RecordingError(f"{src}: NDims = {ndims}; expected 2 (one image), 3 (a sequence "
                              "of 2D frames or one volume) or 4 (a sequence of volumes)")
-    dims = _numbers(header, "DimSize", src, ndims, int)
+    dims = header_numbers(header, "DimSize", src, ndims, int)
     if np.any(dims < 1):
         raise RecordingError(f"{src}: DimSize = {header['DimSize']} must be positive")
     kinds = header.get("Kinds", "").split()
@@ -336,7 +209,7 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
                                                              src)
     if dtype.itemsize > 1:
         dtype = dtype.newbyteorder(">" if msb else "<")
-    channels = int(_numbers(header, "ElementNumberOfChannels", src, 1, int)[0]) \
+    channels = int(header_numbers(header, "ElementNumberOfChannels", src, 1, int)[0]) \
         if "ElementNumberOfChannels" in header else 1
     if channels < 1 or channels > 4:
         raise RecordingError(f"{src}: ElementNumberOfChannels = {channels}; expected 1 to 4")
@@ -348,7 +221,7 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
     # and orientation are per pixel); other types need the whole recording's intensity range
     span = None
     if not compressed and dtype == np.uint8:
-        span = _raw_span(path, src, header, offset, math.prod(shape))
+        span = raw_span(path, src, header, offset, math.prod(shape))
     if span is None:
         nbytes = check_allocation(shape, dtype.itemsize, src, "DimSize/ElementType")
     check_frame_shape(shape[1:1 + len(dims_sp)], src, "DimSize")
@@ -365,15 +238,15 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
 
     stream = None
     if span is not None:
-        raw = _first_frame(span, shape, dtype)  # the others are read when asked for
+        raw = first_frame(span, shape, dtype)  # the others are read when asked for
     elif compressed and dtype == np.uint8:  # inflated frame by frame when read
-        target, start, length = _compressed_span(path, src, header, offset, nbytes)
+        target, start, length = compressed_span(path, src, header, offset, nbytes)
         stream = ZlibStream(target, start, length)
-        _check_inflated(stream, nbytes, str(target))
+        check_inflated(stream, nbytes, str(target))
         frame_bytes = math.prod(shape[1:])
         raw = np.frombuffer(stream.next_bytes(frame_bytes), dtype).reshape((1, *shape[1:]))
     else:
-        blob = _pixel_bytes(path, src, header, offset, nbytes, compressed)
+        blob = pixel_bytes(path, src, header, offset, nbytes, compressed)
         raw = np.frombuffer(blob, dtype=dtype).reshape(shape)
 
     frames: dict[str, list] = {}
@@ -406,7 +279,7 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
     perm = [1, 2, 0] if volume else [1, 0]  # file (x, y, z) -> array (y, z, x) or (y, x)
     spacing = origin = None
     if "ElementSpacing" in header:
-        sp = _numbers(header, "ElementSpacing", src, ndims)[:nsp]
+        sp = header_numbers(header, "ElementSpacing", src, ndims)[:nsp]
         if np.any(sp <= 0):
             raise RecordingError(f"{src}: ElementSpacing = {header['ElementSpacing']} must be "
                                  "positive")
@@ -414,7 +287,7 @@ def read_plus(path: str | os.PathLike) -> PlusSequence:
     off = header.get("Offset", header.get("Position", header.get("Origin")))
     if off is not None:
         key = next(k for k in ("Offset", "Position", "Origin") if k in header)
-        origin = _numbers(header, key, src, ndims)[:nsp][perm]
+        origin = header_numbers(header, key, src, ndims)[:nsp][perm]
 
     transforms, ok = {}, {}
     timestamps = None
@@ -494,7 +367,7 @@ def write_plus(path: str | os.PathLike, plus: PlusSequence, *, compress: bool = 
     files and renamed, so nothing partial replaces an existing output; an existing output is
     refused unless ``overwrite``. ``extra_fields`` are written as header fields."""
     outputs = plus_outputs(path, compress)
-    images = np.asarray(plus.images)
+    images = plus.images if is_frame_stack(plus.images) else np.asarray(plus.images)
     src = str(outputs[0])
     if images.dtype != np.uint8 or images.ndim not in (3, 4):
         raise RecordingError(f"output {src}: images must be uint8 (T, H, W) or (T, Z, Y, X), "
@@ -507,16 +380,13 @@ def write_plus(path: str | os.PathLike, plus: PlusSequence, *, compress: bool = 
     origin = np.zeros(images.ndim - 1) if plus.origin_mm is None else \
         np.asarray(plus.origin_mm, float)
     if volume:
-        data = np.ascontiguousarray(images.transpose(0, 2, 1, 3))  # -> (T, z, y, x) in file
         sp, org = spacing[[2, 0, 1]], origin[[2, 0, 1]]
         dims = (images.shape[3], images.shape[1], images.shape[2], T)
     else:
-        data = np.ascontiguousarray(images)
         sp, org = spacing[[1, 0]], origin[[1, 0]]
         dims = (images.shape[2], images.shape[1], T)
     nd = len(dims)
-    raw = data.tobytes()
-    blob = zlib.compress(raw, 1) if compress else raw
+    blob_size, write_blob = _pixel_data(images, volume, compress)
     lines = [("ObjectType", "Image"), ("NDims", str(nd))]
     if nd == 3:
         lines.append(("AnatomicalOrientation", "RAI"))
@@ -524,7 +394,7 @@ def write_plus(path: str | os.PathLike, plus: PlusSequence, *, compress: bool = 
               ("CenterOfRotation", " ".join(["0"] * nd)),
               ("CompressedData", "True" if compress else "False")]
     if compress:
-        lines.append(("CompressedDataSize", str(len(blob))))
+        lines.append(("CompressedDataSize", str(blob_size)))
     lines += [("DimSize", " ".join(str(int(d)) for d in dims)),
               ("ElementNumberOfChannels", "1"),
               ("ElementSpacing", _nums([*sp, 1.0])),
@@ -563,8 +433,45 @@ def write_plus(path: str | os.PathLike, plus: PlusSequence, *, compress: bool = 
     lines.append(("ElementDataFile", data_name))
     head = "".join(f"{k} = {v}\n" for k, v in lines).encode("utf-8")
     if len(outputs) == 1:
-        writers = {outputs[0]: lambda fh: (fh.write(head), fh.write(blob))}
+        writers = {outputs[0]: lambda fh: (fh.write(head), write_blob(fh))}
     else:
-        writers = {outputs[1]: lambda fh: fh.write(blob), outputs[0]: lambda fh: fh.write(head)}
+        writers = {outputs[1]: write_blob, outputs[0]: lambda fh: fh.write(head)}
     atomic_write(writers, overwrite)
     return outputs
+
+
+def _pixel_data(images, volume: bool, compress: bool):
+    """The pixels as the file holds them ((T, z, y, x) for volumes), as (their size in bytes,
+    ``write(fh)``). An array is written as one byte string (zlib level 1 when compressed); a
+    :class:`~._lazy.FrameStack` frame by frame, its zlib stream first made in an unnamed
+    temporary file (the header gives its size), so that a long recording is never whole in
+    memory."""
+    if not is_frame_stack(images):
+        data = np.ascontiguousarray(images.transpose(0, 2, 1, 3) if volume else images)
+        raw = data.tobytes()
+        blob = zlib.compress(raw, 1) if compress else raw
+        return len(blob), lambda fh: fh.write(blob)
+
+    def frames():
+        for k in range(len(images)):
+            f = images[k]
+            yield np.ascontiguousarray(f.transpose(1, 0, 2) if volume else f).tobytes()
+
+    if not compress:
+        def write_frames(fh):
+            for b in frames():
+                fh.write(b)
+
+        return images.nbytes, write_frames
+    spool = tempfile.TemporaryFile()
+    z = zlib.compressobj(1)
+    for b in frames():
+        spool.write(z.compress(b))
+    spool.write(z.flush())
+
+    def write(fh):
+        spool.seek(0)
+        shutil.copyfileobj(spool, fh)
+        spool.close()
+
+    return spool.tell(), write

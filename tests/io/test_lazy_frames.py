@@ -231,3 +231,32 @@ def test_an_overlay_reads_only_the_frames_it_shows(tmp_path, seq):
     write_overlay(tmp_path / "o.gif", lazy, est, max_frames=3)
     assert reads == [0, 2, 4]
     assert (tmp_path / "o.gif").stat().st_size > 0
+
+
+@pytest.mark.parametrize("name, compress", [("o.seq.mha", False), ("o.seq.mha", True),
+                                            ("o.mhd", True)])
+def test_a_stack_is_written_to_plus_frame_by_frame(tmp_path, seq, name, compress):
+    """--out-plus of a long recording: the same file as from the array (uncompressed, byte
+    for byte), and the same frames read back."""
+    reads = []
+
+    def read(i):
+        reads.append(i)
+        return seq.images[i].copy()
+
+    lazy = dataclasses.replace(seq, images=FrameStack(read, seq.n_frames, seq.images.shape[1:]))
+    (tmp_path / "lazy").mkdir()
+    out = save_plus_sequence(lazy, tmp_path / "lazy" / name, compress=compress)
+    ref = save_plus_sequence(seq, tmp_path / name, compress=compress)
+    assert sorted(reads) == list(range(seq.n_frames))
+    if not compress:
+        assert out[0].read_bytes() == ref[0].read_bytes()
+    np.testing.assert_array_equal(load_recording(out[0]).images, seq.images)
+
+
+def test_a_volume_stack_is_written_in_the_file_order(tmp_path):
+    vol = synth.generate("volume", seed=3, frames=2, output_size=24)
+    lazy = dataclasses.replace(vol, images=FrameStack(lambda i: vol.images[i].copy(),
+                                                      vol.n_frames, vol.images.shape[1:]))
+    out = save_plus_sequence(lazy, tmp_path / "v.seq.mha")
+    np.testing.assert_array_equal(load_recording(out[0]).images, vol.images)
