@@ -155,11 +155,11 @@ def hough_peaks(pts: np.ndarray, w: np.ndarray, thetas_rad: np.ndarray, rho_bin_
     lo = float(rho.min()) if rho_window is None else float(rho_window[0])
     hi = float(rho.max()) if rho_window is None else float(rho_window[1])
     n_bins = max(int(np.ceil((hi - lo) / rho_bin_mm)) + 1, 1)
-    b = ((rho - lo) * (1.0 / rho_bin_mm)).astype(np.int32)
+    b = np.floor((rho - lo) * (1.0 / rho_bin_mm)).astype(np.int32)
+    ok = (b >= 0) & (b < n_bins) if rho_window is not None else None
     b += (np.arange(len(thetas), dtype=np.int32) * n_bins)[None, :]
     weights = np.broadcast_to(np.asarray(w, np.float32)[:, None], b.shape)
-    if rho_window is not None:  # keep the votes inside the window
-        ok = (rho >= lo) & (rho < lo + n_bins * rho_bin_mm)
+    if ok is not None:  # keep the votes inside the window (decided on the bin, as counted)
         b, weights = b[ok], weights[ok]
     acc = np.bincount(b.ravel(), weights=weights.ravel(),
                       minlength=len(thetas) * n_bins).reshape(len(thetas), n_bins)
