@@ -160,8 +160,9 @@ class ZlibStream:
     (its input read 1 MiB at a time). A stream cut short gives what it holds, then nothing;
     damaged data raises ``zlib.error``."""
 
-    def __init__(self, path: str | os.PathLike, start: int, length: int):
+    def __init__(self, path: str | os.PathLike, start: int, length: int, wbits: int = 15):
         self.path, self.start, self.length = path, int(start), int(length)
+        self.wbits = wbits  # zlib's: 15 a zlib stream, 15 + 16 a gzip one
         self._fh = None
         self.restart()
 
@@ -174,7 +175,7 @@ class ZlibStream:
         self._fh = open(self.path, "rb")
         self._fh.seek(self.start)
         self._left = self.length
-        self._d = zlib.decompressobj()
+        self._d = zlib.decompressobj(self.wbits)
         self._pending = bytearray()
         self._done = False
         self.pos = 0  # bytes handed out so far
@@ -213,11 +214,11 @@ class ZlibStream:
 
 def inflated_frames(stream: ZlibStream, n_frames: int, frame_shape, dtype,
                     prepare: Callable[[np.ndarray], np.ndarray], out_shape, src: str,
-                    out_dtype=np.uint8) -> FrameStack:
-    """Frames stored one after another in a zlib stream, inflated when read: frame ``i``
-    after frame ``i - 1`` inflates one frame, a frame further on inflates (and drops) the
-    ones between, an earlier one starts the stream again. Frame ``i`` is
-    ``prepare(raw_frame_i)``, as in :func:`mapped_frames`."""
+                    out_dtype=np.uint8, skip: int = 0) -> FrameStack:
+    """Frames stored one after another in a zlib stream from its inflated byte ``skip``,
+    inflated when read: frame ``i`` after frame ``i - 1`` inflates one frame, a frame further
+    on inflates (and drops) the ones between, an earlier one starts the stream again. Frame
+    ``i`` is ``prepare(raw_frame_i)``, as in :func:`mapped_frames`."""
     import zlib
 
     from ._errors import RecordingError
@@ -226,13 +227,14 @@ def inflated_frames(stream: ZlibStream, n_frames: int, frame_shape, dtype,
     frame_bytes = int(np.prod(frame_shape)) * dtype.itemsize
 
     def read(i: int) -> np.ndarray:
+        at = int(skip) + i * frame_bytes
         try:
-            if stream.pos > i * frame_bytes:
+            if stream.pos > at:
                 stream.restart()
-            while stream.pos < i * frame_bytes:
-                if not stream.next_bytes(min(frame_bytes, i * frame_bytes - stream.pos)):
+            while stream.pos < at:
+                if not stream.next_bytes(min(1 << 20, at - stream.pos)):
                     break
-            data = stream.next_bytes(frame_bytes) if stream.pos == i * frame_bytes else b""
+            data = stream.next_bytes(frame_bytes) if stream.pos == at else b""
         except (zlib.error, OSError) as exc:
             raise RecordingError(f"{src}: frame {i}: compressed pixel data is damaged "
                                  f"({exc})") from None

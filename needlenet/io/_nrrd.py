@@ -25,7 +25,7 @@ import numpy as np
 
 from ._errors import RecordingError
 from ._gray import to_gray_uint8
-from ._lazy import mapped_frames
+from ._lazy import ZlibStream, inflated_frames, mapped_frames
 from ._limits import check_allocation, check_frame_shape
 
 __all__ = ["NrrdRecording", "read_nrrd"]
@@ -59,12 +59,14 @@ _TYPE_BYTES = {**dict.fromkeys(("signed char", "int8", "int8_t", "uchar", "unsig
                                 "uint64_t", "double"), 8)}
 
 
-def _check_header(path: Path, src: str) -> tuple[dict, tuple[Path, int] | None]:
+def _check_header(path: Path, src: str) -> tuple[dict, tuple | None, tuple | None]:
     """The header alone, before any pixel is read: a known scalar type, sizes this machine can
     hold, and a detached data file that is a regular file next to the header holding (for raw
-    encoding) the bytes the sizes need. Returns the header and, for raw unsigned 8-bit data
-    that the file holds exactly (no line skip), the data file and the offset of the pixels,
-    which can then be memory-mapped; else None."""
+    encoding) the bytes the sizes need. Returns the header; for raw unsigned 8-bit data that
+    the file holds exactly (no line skip), the data file and the offset of the pixels, which
+    can then be memory-mapped (else None); for gzip-encoded unsigned 8-bit data that inflates
+    to exactly those bytes, the data file, where the gzip stream starts and how many inflated
+    bytes to skip (else None)."""
     import nrrd
 
     try:
@@ -120,9 +122,14 @@ def _check_header(path: Path, src: str) -> tuple[dict, tuple[Path, int] | None]:
         where = src if data_file is None else f"{target} ({src}'s data file)"
         raise RecordingError(f"{where}: truncated: sizes/type need {nbytes} bytes of pixels, "
                              f"the file has {avail - max(int(byte_skip), 0)}")
+    gz_at = None
     if encoding in ("gzip", "gz", "bzip2", "bz2"):
-        _check_inflated(target, start, encoding, nbytes + max(int(byte_skip), 0), src)
-    return header, span
+        total = _check_inflated(target, start, encoding, nbytes + max(int(byte_skip), 0), src)
+        skip = total - nbytes if byte_skip == -1 else int(byte_skip)
+        if encoding in ("gzip", "gz") and kind in _UINT8 and line_skip == 0 and \
+                total - skip == nbytes:  # as pynrrd reads it: exactly the bytes of the sizes
+            gz_at = (target, start, skip)
+    return header, span, gz_at
 
 
 def _mappable_span(path: Path, header: dict, header_end: int,
@@ -146,10 +153,10 @@ def _mappable_span(path: Path, header: dict, header_end: int,
     return (target, first) if first >= start and end - first == nbytes else None
 
 
-def _check_inflated(target: Path, start: int, encoding: str, need: int, src: str) -> None:
+def _check_inflated(target: Path, start: int, encoding: str, need: int, src: str) -> int:
     """The compressed data inflates to no more than ``need`` bytes: pynrrd inflates the whole
     stream before it compares sizes, so a few megabytes that inflate to gigabytes would be
-    allocated whole. Inflated here in 1 MiB pieces, counted and dropped."""
+    allocated whole. Inflated here in 1 MiB pieces, counted and dropped; returns the count."""
     import bz2
 
     gz = encoding in ("gzip", "gz")
@@ -182,6 +189,7 @@ def _check_inflated(target: Path, start: int, encoding: str, need: int, src: str
     except (zlib.error, OSError, EOFError) as exc:
         raise RecordingError(f"{src}: the {encoding} data is damaged "
                              f"({' '.join(str(exc).split())[:120]})") from None
+    return total
 
 
 def _axes(header: dict, nd: int, src: str):
@@ -230,13 +238,13 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
     src = str(path)
     if not path.is_file():
         raise FileNotFoundError(f"{src}: no such recording")
-    header, span = _check_header(path, src)
-    if span is not None:
+    header, span, gz_at = _check_header(path, src)
+    if span is not None or gz_at is not None:
         sizes = [int(n) for n in header["sizes"]]
         dirs, kinds, spatial, lists, colors = _axes(header, len(sizes), src)
         if lists and lists[0] != len(sizes) - 1:
-            span = None  # frames interleaved (the list axis is not the slowest): read whole
-    if span is None:
+            span = gz_at = None  # frames interleaved (list axis not the slowest): read whole
+    if span is None and gz_at is None:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
@@ -250,16 +258,23 @@ def read_nrrd(path: str | os.PathLike) -> NrrdRecording:
     nd = len(sizes)
     order = lists + spatial[::-1] + colors  # -> (T, depth, ..., lateral, C)
     channels = int(sizes[colors[0]]) if colors else 1
-    if span is not None:
+    if span is not None or gz_at is not None:
         # frame after frame, each in Fortran order: a C-order frame is its axes reversed
-        frame_f = sizes[:-1] if lists else sizes
+        frame_c = (sizes[:-1] if lists else sizes)[::-1]
         frame_order = spatial[::-1] + colors
+        T, out_shape = sizes[-1] if lists else 1, [sizes[a] for a in spatial[::-1]]
 
         def prepare(raw: np.ndarray) -> np.ndarray:
             return to_gray_uint8(raw.T.transpose(frame_order)[None], channels)[0][0]
 
-        images = mapped_frames(span[0], span[1], sizes[-1] if lists else 1, frame_f[::-1],
-                               np.uint8, prepare, [sizes[a] for a in spatial[::-1]])
+        if span is not None:
+            images = mapped_frames(span[0], span[1], T, frame_c, np.uint8, prepare, out_shape)
+        else:
+            target, start, skip = gz_at
+            stream = ZlibStream(target, start, os.path.getsize(target) - start,
+                                wbits=zlib.MAX_WBITS | 16)
+            images = inflated_frames(stream, T, frame_c, np.uint8, prepare, out_shape, src,
+                                     skip=skip)
         irange, notes = None, []
     else:
         arr = np.transpose(data, order)

@@ -107,16 +107,33 @@ def test_mapped_plus_applies_the_orientation_per_frame(tmp_path, seq, orientatio
     np.testing.assert_array_equal(got.images, want)
 
 
-def test_raw_nrrd_is_mapped_and_tracks_as_the_gzip_one(tmp_path, seq):
-    _write_nrrd(tmp_path / "r.seq.nrrd", seq.images, "raw")
-    _write_nrrd(tmp_path / "g.seq.nrrd", seq.images, "gzip")
-    lazy, eager = load_recording(tmp_path / "r.seq.nrrd"), load_recording(tmp_path / "g.seq.nrrd")
-    assert isinstance(lazy.images, FrameStack) and isinstance(eager.images, np.ndarray)
-    np.testing.assert_array_equal(lazy.images, seq.images)
-    np.testing.assert_array_equal(lazy.images[5], eager.images[5])
-    np.testing.assert_array_equal(lazy.spacing_mm, eager.spacing_mm)
-    np.testing.assert_array_equal(lazy.timestamps_s, eager.timestamps_s)
-    _same_tracking(lazy, eager)
+def test_raw_and_gzip_nrrd_are_read_frame_by_frame_and_track_as_the_whole_read(tmp_path, seq):
+    """raw: memory-mapped; gzip: inflated in order; bzip2: read whole, as before."""
+    for enc in ("raw", "gzip", "bzip2"):
+        _write_nrrd(tmp_path / f"{enc}.seq.nrrd", seq.images, enc)
+    mapped, inflated, whole = (load_recording(tmp_path / f"{enc}.seq.nrrd")
+                               for enc in ("raw", "gzip", "bzip2"))
+    assert isinstance(whole.images, np.ndarray)
+    for got in (mapped, inflated):
+        assert isinstance(got.images, FrameStack)
+        for i in (0, 5, 1):
+            np.testing.assert_array_equal(got.images[i], seq.images[i])
+        np.testing.assert_array_equal(got.images, whole.images)
+        np.testing.assert_array_equal(got.spacing_mm, whole.spacing_mm)
+        np.testing.assert_array_equal(got.timestamps_s, whole.timestamps_s)
+        _same_tracking(got, whole)
+
+
+def test_a_gzip_nrrd_cut_after_opening_names_the_frame(tmp_path, seq):
+    path = tmp_path / "g.seq.nrrd"
+    _write_nrrd(path, seq.images, "gzip")
+    got = load_recording(path)
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) - 300])
+    np.testing.assert_array_equal(got.images[0], seq.images[0])
+    with pytest.raises(RecordingError, match=r"g\.seq\.nrrd: frame 5: the compressed pixel "
+                                             r"data ends before it"):
+        got.images[5]
 
 
 def test_nrrd_with_interleaved_frames_is_read_whole(tmp_path, seq):
