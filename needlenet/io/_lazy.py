@@ -10,8 +10,8 @@ gives another stack without reading anything. Code that needs every pixel at onc
 :func:`mapped_frames` reads uncompressed pixel data through a read-only memory map: each frame
 is copied out when it is read and its pages are handed back to the kernel, so the resident
 memory stays at a frame or two however long the recording is. :func:`inflated_frames` reads
-frames out of one zlib stream (a compressed PLUS file), inflating them in order as they are
-read.
+frames out of one zlib or gzip stream (a compressed PLUS file, a gzip NRRD), inflating them in
+order as they are read.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ __all__ = ["FrameStack", "mapped_frames", "is_frame_stack", "ZlibStream", "infla
 
 
 def is_frame_stack(obj) -> bool:
+    """Whether ``obj`` is a :class:`FrameStack` (frames read when indexed)."""
     return isinstance(obj, FrameStack)
 
 
