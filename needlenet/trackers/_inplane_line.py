@@ -54,6 +54,7 @@ from ..backends import (
 from ..features import FeatureSource, Frame, line_contrast
 from ._base import NeedleEstimate, Status, Tracker
 from ._details import LineDetails
+from ._inplane_line_echo import EchoTestParams, echo_along
 
 __all__ = ["LineTrackerParams", "LineTracker"]
 
@@ -91,11 +92,14 @@ class LineTrackerParams:
     ``entry_margin_mm``: a segment whose entry end lies this close to that edge (along the
     line or straight) enters through it, as an inserted needle does; a floating one is taken
     only within ``track_window_deg``/``track_window_mm`` of a needle tracked before.
+    ``echo``: with classical features a line is a needle only where its echo shows along it
+    (:mod:`._inplane_line_echo`).
     ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
     not read (the mask's step is no echo; the shipped in-plane model marks it up to 1.5 mm
     in, measured on needle-free synth frames with sector masks and margins)."""
 
     search: LineSearchParams = field(default_factory=LineSearchParams)
+    echo: EchoTestParams = field(default_factory=EchoTestParams)
     min_length_mm: float = 5.0
     learned_level: float = 0.5
     classical_level: float = 2.0
@@ -307,6 +311,13 @@ class LineTracker(Tracker):
                 if not _on_line(seg, *self._axis, p.track_window_deg, p.track_window_mm):
                     return (f"the {seg.length_mm:.0f} mm line floats in the tissue off the axis "
                             "of the needle seen entering")
+            if self.features.kind != "learned":
+                entry_first = d[1] > 0 if abs(d[1]) >= sin_min else a <= b
+                seen, share = echo_along(frame, seg, entry_first, p.echo)
+                if not seen:
+                    return (f"the {seg.length_mm:.0f} mm line's echo stands out of the tissue "
+                            f"in {100 * share:.0f}% of its sections (needs "
+                            f"{100 * p.echo.coverage:.0f}%, and of its entry half)")
             return ""
 
         def priority(seg: NeedleLine) -> int:

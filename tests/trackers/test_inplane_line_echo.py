@@ -1,0 +1,72 @@
+"""The classical line tracker's echo test (needlenet/trackers/_inplane_line_echo.py): a line
+counts as a needle only where its echo stands out of the tissue along it."""
+
+import numpy as np
+import pytest
+
+import synth
+from needlenet.backends import NeedleLine
+from needlenet.features import Frame
+from needlenet.trackers._inplane_line_echo import EchoTestParams, echo_along
+
+SPACING = 0.1
+
+
+def _speckle(seed: int, shape=(300, 300)) -> np.ndarray:
+    """Log-compressed fully developed speckle (Rayleigh envelope), 8-bit."""
+    rng = np.random.default_rng(seed)
+    env = np.abs(rng.normal(size=shape) + 1j * rng.normal(size=shape))
+    return np.clip(40 * np.log10(env + 1e-3) + 110, 0, 255)
+
+
+def _frame(image: np.ndarray) -> Frame:
+    g = synth.Grid(image.shape, (SPACING, SPACING), (0.0, 0.0))
+    return Frame(image=image.astype(np.uint8), grid=g)
+
+
+def _segment(a, b) -> NeedleLine:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    d = (b - a) / np.linalg.norm(b - a)
+    return NeedleLine(True, "", a, b, d, 1.0, 1.0)
+
+
+def _draw(image, a, b, value, frac=(0.0, 1.0)):
+    """A 0.3 mm thick line from a to b (mm) at ``value``, over the fraction ``frac`` of it."""
+    t = np.linspace(*frac, 2000)[:, None]
+    p = np.asarray(a) + t * (np.subtract(b, a))
+    for off in (-1, 0, 1):
+        r = np.clip(np.rint(p[:, 1] / SPACING).astype(int) + off, 0, image.shape[0] - 1)
+        c = np.clip(np.rint(p[:, 0] / SPACING).astype(int), 0, image.shape[1] - 1)
+        image[r, c] = value
+    return image
+
+
+A, B = (2.0, 8.0), (27.0, 22.0)  # entry (shallower) end first
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_bright_line_shows_its_echo(seed):
+    im = _draw(_speckle(seed), A, B, 250)
+    seen, share = echo_along(_frame(im), _segment(A, B), True, EchoTestParams())
+    assert seen and share > 0.9
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_speckle_along_a_line_does_not(seed):
+    seen, share = echo_along(_frame(_speckle(seed)), _segment(A, B), True, EchoTestParams())
+    assert not seen and share < 0.3
+
+
+def test_a_line_bright_only_beyond_its_entry_half_does_not():
+    """A tissue line further along the segment than its entry half: the needle's shaft would
+    be echogenic from the entry on."""
+    im = _draw(_speckle(3), A, B, 250, frac=(0.4, 1.0))
+    seen, share = echo_along(_frame(im), _segment(A, B), True, EchoTestParams())
+    assert not seen and 0.5 <= share < 0.75
+    # read from the other end, the bright half is the entry half
+    assert echo_along(_frame(im), _segment(A, B), False, EchoTestParams())[0]
+
+
+def test_settings_out_of_range_are_refused():
+    with pytest.raises(ValueError, match="echo test"):
+        EchoTestParams(band_mm=(3.0, 2.0))
