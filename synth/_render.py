@@ -13,8 +13,7 @@ from ._progress import Progress
 from ._scanner import Scanner
 from ._sequence import Sequence
 
-__all__ = ["Trajectory", "tube_indices", "tube_distances", "contrast_ratio", "render_sequence",
-           "Progress"]
+__all__ = ["Trajectory", "tube_indices", "tube_distances", "contrast_ratio", "render_sequence"]
 
 N_CENTERLINE = 64
 

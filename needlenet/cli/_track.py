@@ -255,7 +255,7 @@ def _run_tracker(args, tracker, seq) -> list:
 
     import numpy as np
 
-    from synth._render import Progress
+    from synth import Progress
 
     from ..io._limits import MAX_GAP_S
     from ..trackers._base import frames_from_sequence
