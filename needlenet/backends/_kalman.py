@@ -18,6 +18,7 @@ Models:
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -116,6 +117,7 @@ def mahalanobis(y, S) -> float:
     return _innovation_stats(y, S)[0]
 
 
+@lru_cache(maxsize=64)  # a tracker asks for the same gate every frame; chi2.ppf takes 0.1 ms
 def chi2_gate(dim_z: int, probability: float = 0.997) -> float:
     """Mahalanobis-distance threshold of the chi-square gate.
 

@@ -14,9 +14,19 @@ __all__ = ["FeatureSource", "Frame", "FrameError", "IntensityFeatures", "Likelih
            "image_statistics", "normalize", "to_model_grid"]
 
 
-def learned_features(modality: str, model: str | None = None, threads: int = 2) -> FeatureSource:
-    """The learned FeatureSource of a modality: the shipped ONNX model, or ``model``."""
+# onnxruntime threads per modality: the in-plane network on one 500 x 384 frame (252 x 192 on
+# its grid) runs no faster on two threads than on one (0.83 ms at best either way, on the
+# 2-core machine), and a second thread only contends with other work; volumes do use two
+DEFAULT_THREADS = {"inplane": 1, "axial": 2, "volume": 2}
+
+
+def learned_features(modality: str, model: str | None = None,
+                     threads: int | None = None) -> FeatureSource:
+    """The learned FeatureSource of a modality: the shipped ONNX model, or ``model``;
+    ``threads``: onnxruntime's intra-op threads (default :data:`DEFAULT_THREADS`)."""
     from ._learned import LearnedFeatures, shipped_model_path
 
     path = model if model is not None else shipped_model_path(modality)
+    if threads is None:
+        threads = DEFAULT_THREADS.get(modality, 2)
     return LearnedFeatures(path, modality=modality, threads=threads)

@@ -80,6 +80,12 @@ class FeatureSource(ABC):
     def likelihood(self, frame: Frame, roi: tuple[slice, ...] | None = None) -> Likelihood:
         """Maps for the whole frame; with ``roi``, only that region needs to be valid."""
 
+    def native_likelihood(self, frame: Frame) -> tuple[Likelihood, Grid]:
+        """Maps for the whole frame on the grid the source computes them on, and that grid. A
+        tracker that resamples the maps to a working grid of its own reads them here and
+        skips their return to the frame's grid. By default the frame's grid."""
+        return self.likelihood(frame), frame.grid
+
 
 class IntensityFeatures(FeatureSource):
     """The image itself, scaled to [0, 1]: the feature of intensity-threshold methods

@@ -24,6 +24,7 @@ from ._resample import (
     NORMALIZATIONS,
     apply_weights,
     frame_statistics,
+    model_grid,
     model_shape,
     normalize,
     pad_to_multiple,
@@ -343,6 +344,13 @@ class LearnedFeatures(FeatureSource):
             self.check_frame_size(np.shape(image), spacing_mm)
         except ModelError as exc:
             raise FrameError(str(exc)) from None
+        up = self._model_grid_maps(image, spacing_mm, level)
+        # fmax/fmin clip like np.clip but turn NaN into 0: a model that fails somewhere gives
+        # no evidence there (the tracker then says lost), never a NaN estimate
+        return np.fmin(np.fmax(to_frame_grid(up, image.shape), 0.0), 1.0)
+
+    def _model_grid_maps(self, image: np.ndarray, spacing_mm, level=None) -> np.ndarray:
+        """The network's maps (2, *model shape) on the model's grid, unclipped."""
         x = to_model_grid(image, spacing_mm, self.spacing_mm)
         if level is None:
             level = frame_statistics(image, self.normalization)
@@ -350,10 +358,22 @@ class LearnedFeatures(FeatureSource):
         xp, crop = pad_to_multiple(x, self.multiple)
         y = self.session.run(["likelihood"], {"image": xp[None, None].astype(np.float32)})[0][0]
         up = to_frame_grid(y, xp.shape)  # stride-2 output back to the padded model grid
-        up = up[(slice(None),) + crop]
-        # fmax/fmin clip like np.clip but turn NaN into 0: a model that fails somewhere gives
-        # no evidence there (the tracker then says lost), never a NaN estimate
-        return np.fmin(np.fmax(to_frame_grid(up, image.shape), 0.0), 1.0)
+        return up[(slice(None),) + crop]
+
+    def native_likelihood(self, frame: Frame):
+        """2D frames: the maps on the model's grid (:func:`model_grid`), without their return
+        to the frame's grid; 3D frames: :meth:`likelihood`'s."""
+        im = np.asarray(frame.image)
+        if im.ndim != 2:
+            return self.likelihood(frame), frame.grid
+        try:
+            self.check_frame_size(im.shape, frame.grid.spacing_mm)
+        except ModelError as exc:
+            raise FrameError(str(exc)) from None
+        up = self._model_grid_maps(im, frame.grid.spacing_mm)
+        maps = np.fmin(np.fmax(up, 0.0), 1.0)
+        return (Likelihood(shaft=maps[0], tip=maps[1], source=self.name),
+                model_grid(frame.grid, maps.shape[1:]))
 
     def likelihood(self, frame: Frame, roi=None) -> Likelihood:
         """Maps on the frame's grid. ``roi``: None (the whole frame); a tuple of slices (one

@@ -7,8 +7,10 @@ import cv2
 import numba
 import numpy as np
 
-__all__ = ["model_shape", "to_model_grid", "to_frame_grid", "pad_to_multiple", "image_level",
-           "image_statistics", "frame_statistics", "normalize", "NORMALIZATIONS",
+from synth import Grid
+
+__all__ = ["model_shape", "model_grid", "to_model_grid", "to_frame_grid", "pad_to_multiple",
+           "image_level", "image_statistics", "frame_statistics", "normalize", "NORMALIZATIONS",
            "axis_weights", "resize_weights", "apply_weights"]
 
 # Intensity normalisations a model can be trained with (stored in its ONNX metadata):
@@ -158,6 +160,18 @@ def apply_weights(a: np.ndarray, weights) -> np.ndarray:
                              weight)
         out = res.reshape(shape[:ax] + (w.shape[0],) + shape[ax + 1:])
     return out
+
+
+def model_grid(grid: Grid, shape) -> Grid:
+    """The grid of an array of ``shape`` resampled from ``grid`` by :func:`_resize` (cv2's
+    half-pixel centres): sample i lies at frame index (i + 1/2) n / m - 1/2 per axis."""
+    n = np.asarray(grid.shape, float)
+    m = np.asarray(shape, float)
+    sp = np.asarray(grid.spacing_mm, float)
+    ratio = n / m
+    origin = np.asarray(grid.origin_mm, float) + (0.5 * ratio - 0.5) * sp
+    return Grid(tuple(int(k) for k in shape), tuple(float(v) for v in ratio * sp),
+                tuple(float(v) for v in origin))
 
 
 def to_model_grid(image: np.ndarray, spacing_mm, model_spacing_mm) -> np.ndarray:

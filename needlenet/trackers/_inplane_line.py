@@ -221,12 +221,13 @@ class LineTracker(Tracker):
         return self.params.learned_level if self.features.kind == "learned" else \
             self.params.classical_level
 
-    def _evidence(self, frame: Frame, shaft: np.ndarray, inner: np.ndarray) -> WorkingMap:
-        """The evidence map on the working grid, zero outside ``inner`` (the imaged region less
-        ``mask_edge_mm`` at the edges of capture margins and sector masks, which are steps in
-        the image, not echoes)."""
+    def _evidence(self, shaft: np.ndarray, grid, inner: np.ndarray) -> WorkingMap:
+        """The evidence map (``shaft`` on ``grid``: the frame's, or the learned model's own)
+        on the working grid, zero outside ``inner`` (on the frame's grid: the imaged region
+        less ``mask_edge_mm`` at the edges of capture margins and sector masks, which are
+        steps in the image, not echoes)."""
         p = self.params
-        wm = working_map(shaft, frame.grid, p.search.work_spacing_mm)
+        wm = working_map(shaft, grid, p.search.work_spacing_mm)
         values = wm.values
         if self.features.kind != "learned":
             values = line_contrast(values, int(round(p.contrast_window_mm / wm.step)))
@@ -338,9 +339,9 @@ class LineTracker(Tracker):
         if frame.grid.ndim != 2:
             raise ValueError(f"LineTracker needs 2-D images, got a {frame.grid.ndim}-D grid")
         dt = self._update_dt(frame.t)
-        lik = self.features.likelihood(frame)
+        lik, map_grid = self.features.native_likelihood(frame)
         inner = self._inner_region(frame)
-        wm = self._evidence(frame, lik.shaft, inner)
+        wm = self._evidence(lik.shaft, map_grid, inner)
         if self._x is not None:
             self._x, self._P = predict(self._x, self._P, *self._motion(dt))
         is_valid, priority = self._validity(frame, inner)
@@ -352,7 +353,7 @@ class LineTracker(Tracker):
         if new_line and self._dir is not None:
             self._forget()  # another line than the one tracked: start anew
         seg = self._orient(seg, frame, inner)
-        tip_mm, used_tip_map = self._tip(seg, lik.tip, frame)
+        tip_mm, used_tip_map = self._tip(seg, lik.tip, map_grid)
         self._misses = 0
         measured = tip_mm.copy()
         accepted, restarted = self._filter(tip_mm)
@@ -449,7 +450,7 @@ class LineTracker(Tracker):
             return seg if float(seg.direction @ self._dir) >= 0 else seg.reversed()
         return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, valid)
 
-    def _tip(self, seg: NeedleLine, tip_map, frame: Frame) -> tuple[np.ndarray, bool]:
+    def _tip(self, seg: NeedleLine, tip_map, grid) -> tuple[np.ndarray, bool]:
         """The tip (x, z) on the centre line: the segment's far end, moved to the tip map's
         maximum within ``tip_window_mm`` of it when the map is confident there."""
         p = self.params
@@ -463,7 +464,7 @@ class LineTracker(Tracker):
             step = p.search.work_spacing_mm / 2
             s = np.arange(-back, ahead + 1e-9, step)
             pts = end[None] + s[:, None] * seg.direction[None]
-            vals = _sample_frame(np.asarray(tip_map, np.float32), frame, pts)
+            vals = _sample_grid(np.asarray(tip_map, np.float32), grid, pts)
             k = int(np.argmax(vals))
             if vals[k] >= p.tip_map_min:
                 end = pts[k]
@@ -543,9 +544,9 @@ def _entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float,
     return seg if a <= b else seg.reversed()
 
 
-def _sample_frame(values: np.ndarray, frame: Frame, pts: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a frame-grid map at points (N, 2) in mm; 0 outside."""
-    idx = frame.grid.points_to_index(pts)  # (N, 2) as (row, col)
+def _sample_grid(values: np.ndarray, grid, pts: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a map on ``grid`` at points (N, 2) in mm; 0 outside."""
+    idx = grid.points_to_index(pts)  # (N, 2) as (row, col)
     out = cv2.remap(values, idx[:, 1].astype(np.float32).reshape(1, -1),
                     idx[:, 0].astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
@@ -560,12 +561,29 @@ def _imaged_region(frame: Frame) -> np.ndarray:
     im = np.asarray(frame.image)
     dz, dx = frame.grid.spacing_mm
     k = (max(int(round(1.0 / dx)) | 1, 3), max(int(round(1.0 / dz)) | 1, 3))
+    if not _blank_on_border(im, k):  # no margin: every blank area lies inside the image
+        return np.ones(im.shape, bool)
     valid = cv2.blur((im > 0).astype(np.float32), k) > 0.2
     if valid.all():
         return valid
     n, labels = cv2.connectedComponents((~valid).astype(np.uint8), connectivity=4)
     border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
     return ~np.isin(labels, border[border > 0])
+
+
+def _blank_on_border(im: np.ndarray, k: tuple[int, int]) -> bool:
+    """Whether a pixel on the frame's border is blank by :func:`_imaged_region`'s test (the
+    box of ``k`` = (width, height) pixels around it at most a fifth non-zero), reading only
+    the strips along the border that those boxes cover."""
+    kx, kz = min(k[0], im.shape[1]), min(k[1], im.shape[0])
+    strips = ((im[:kz], 0, None), (im[-kz:], -1, None), (im[:, :kx], None, 0),
+              (im[:, -kx:], None, -1))
+    for strip, row, col in strips:
+        b = cv2.blur((strip > 0).astype(np.float32), k)
+        edge = b[row] if row is not None else b[:, col]
+        if np.any(edge <= 0.2):
+            return True
+    return False
 
 
 _AROUND = np.stack([np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False)),

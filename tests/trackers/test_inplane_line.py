@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import synth
-from needlenet.features import Frame, line_contrast
+from needlenet.features import FeatureSource, Frame, Likelihood, line_contrast
 from needlenet.trackers._base import Status
 from needlenet.trackers._inplane_line import LineTracker, LineTrackerParams
 
@@ -161,7 +161,7 @@ def test_expected_angle_is_checked():
         LineTracker(expected_angle_deg=95.0)
 
 
-class _MapSource:
+class _MapSource(FeatureSource):
     """A stand-in learned source whose shaft map is a given array."""
 
     kind = "learned"
@@ -172,8 +172,6 @@ class _MapSource:
         self.shaft = shaft
 
     def likelihood(self, frame, roi=None):
-        from needlenet.features import Likelihood
-
         return Likelihood(shaft=self.shaft, tip=None, source=self.name)
 
 
