@@ -96,9 +96,9 @@ from ..backends import (
     UpdateOutcome,
     fit_plane_angle_pca,
     match_template_roi,
-    variance_image,
 )
 from ..features import FeatureSource, Frame
+from ._axial_maps import SliceMaps, region_box, roi_reach_px, slice_maps
 from ._axial_params import AxialParams
 from ._base import NeedleEstimate, Status, Tracker
 from ._cross_section import below_top_edge, bilinear, odd_px, peak_covariance, subpixel_peak
@@ -140,8 +140,8 @@ class _ReprojectedPF(CarriereParticleFilter):
     u) is re-estimated by PCA each frame; steps 3-9 then run once, as in the paper."""
 
     def update_history(self, v: np.ndarray, u: np.ndarray) -> UpdateOutcome:
-        self._v = [float(x) for x in v[:-1]]
-        self._u = [float(x) for x in u[:-1]]
+        self._v = v[:-1].tolist()
+        self._u = u[:-1].tolist()
         return self.update(float(v[-1]), float(u[-1]))
 
 
@@ -308,16 +308,25 @@ class AxialTracker(Tracker):
         tr.frozen = tr.pf.stopped
 
     # -- image -------------------------------------------------------------------------------
-    def _score_map(self, F: np.ndarray, spacing: float) -> tuple[np.ndarray, float, float]:
-        """The feature map smoothed at the needle's scale, and its robust location and scale
-        (median and 1.4826 MAD of every third sample: the map is smooth, and the needle
-        covers too little of it to move either)."""
+    def _maps(self, frame: Frame, spacing: np.ndarray, size: tuple[int, int],
+              roi_rc: np.ndarray | None = None) -> SliceMaps:
+        """The slice's maps (:func:`~._axial_maps.slice_maps`): over the whole slice, or for a
+        learned source with ``learned_roi`` and an ROI centre ``roi_rc``, from the network run
+        on the box the tracking step reads (:func:`~._axial_maps.roi_reach_px`) plus the
+        source's context."""
         p = self.params
-        S = cv2.GaussianBlur(F, (0, 0), p.needle_radius_mm / spacing)
-        sub = S[::3, ::3]
-        med = float(np.median(sub))
-        mad = 1.4826 * float(np.median(np.abs(sub - med)))
-        return S, med, max(mad, p.score_floor)
+        sigma = p.needle_radius_mm / float(spacing.mean())
+        learned = self._is_learned()
+        template = p.learned_template if learned else None
+        box = None
+        if roi_rc is not None and learned and p.learned_roi:
+            drift = np.maximum(np.rint(p.drift_tolerance_mm / spacing), 1).astype(int)
+            refine = np.ceil(p.needle_radius_mm / spacing).astype(int)
+            half = roi_reach_px(size, drift, sigma, refine)
+            context = np.ceil(float(getattr(self.features, "margin_mm", 0.0)) / spacing)
+            box = region_box(frame.image.shape, roi_rc, half, context,
+                             int(getattr(self.features, "multiple", 1)))
+        return slice_maps(self.features, frame, sigma, p.score_floor, template, box)
 
     def _is_learned(self) -> bool:
         return getattr(self.features, "kind", "") == "learned"
@@ -344,18 +353,6 @@ class AxialTracker(Tracker):
             return center
         rr, cc = np.mgrid[lo[0]:hi[0], lo[1]:hi[1]]
         return np.array([(rr * w).sum(), (cc * w).sum()]) / w.sum() + off
-
-    def _template_image(self, F: np.ndarray, image) -> np.ndarray:
-        """The feature map, or for a learned source the variance image of eq. (1)
-        (``learned_template = "variance"``) or the image over its median (``"texture"``, so
-        that the gain does not matter), weighted by the map."""
-        if not self._is_learned() or self.params.learned_template == "map":
-            return F
-        if self.params.learned_template == "variance":
-            return np.ascontiguousarray(F * variance_image(image), dtype=np.float32)
-        im = np.asarray(image, dtype=np.float32)
-        level = max(float(np.median(im[::2, ::2])), 1.0)
-        return np.ascontiguousarray(F * (im / np.float32(level)), dtype=np.float32)
 
     def _min_peak(self) -> float:
         if self.params.min_peak is not None:
@@ -393,9 +390,6 @@ class AxialTracker(Tracker):
         tr.n_frames += 1
         grid = frame.grid
         spacing = np.asarray(grid.spacing_mm, dtype=float)  # (row, col) = (z, x)
-        F = np.ascontiguousarray(self.features.likelihood(frame).shaft, dtype=np.float32)
-        S, s_med, s_scale = self._score_map(F, float(spacing.mean()))
-        M = self._template_image(F, frame.image)  # what the NCC templates are cut from
         size = (odd_px(p.template_mm, spacing[0]), odd_px(p.template_mm, spacing[1]))
 
         def to_f0_xz(rc):
@@ -412,6 +406,7 @@ class AxialTracker(Tracker):
         pred_xz = (tr.origin_xz + pred_u * self._u_axis_f0()) if np.isfinite(pred_u) else None
         ncc_peak, score, roi_source, outlier, reason = np.nan, np.nan, None, False, None
         status, center, cov = self.status, None, None
+        maps = None
         accepted = detected = False
         feed = True
         if status == Status.TRACKING and tr.template is not None:
@@ -421,6 +416,8 @@ class AxialTracker(Tracker):
                 pred_rc = from_f0_rc(pred_xz)
                 if np.linalg.norm((pred_rc - prev_rc) * spacing) <= p.max_jump_mm:
                     roi_rc, roi_source = pred_rc, "model"
+            maps = self._maps(frame, spacing, size, roi_rc)
+            M = maps.M  # what the NCC templates are cut from
             m = None
             try:
                 m = match_template_roi(M, tr.template, roi_rc, size)  # section II: NCC in ROI
@@ -430,10 +427,11 @@ class AxialTracker(Tracker):
                 reason = str(exc)
             if m is not None:
                 ncc_peak = m.peak
-                score = (bilinear(S, m.center) - s_med) / s_scale
+                s_at = bilinear(maps.S, m.center)
+                score = (s_at - maps.med) / maps.scale
                 jump = float(np.linalg.norm(to_f0_xz(m.center) - tr.last_xz_f0))
                 allowed = p.max_jump_mm + p.max_slope * abs(eps - tr.last_eps)
-                if score < p.lost_score or bilinear(S, m.center) < self._min_peak():
+                if score < p.lost_score or s_at < self._min_peak():
                     status = Status.LOST  # the cross-section vanished
                     reason = f"no cross-section at the match (score {score:.1f})"
                 elif m.peak < p.ncc_min:
@@ -445,7 +443,7 @@ class AxialTracker(Tracker):
                     cov = peak_covariance(m.score, spacing)
                     if (p.learned_peak_refine and self._is_learned()
                             and p.learned_template == "map"):
-                        center = self._refine_on_map(F, center, spacing)
+                        center = self._refine_on_map(maps.F, center, spacing)
             if status == Status.TRACKING and not accepted:
                 outlier = True
                 tr.misses += 1
@@ -456,7 +454,9 @@ class AxialTracker(Tracker):
                     cov = np.diag(np.full(2, (0.5 * p.max_jump_mm) ** 2))
         if status != Status.TRACKING or tr.template is None:
             # (re-)detection: the maximum of the smoothed map replaces the user's click
-            center, score = self._detect(F, S, s_med, s_scale, spacing)
+            if maps is None or maps.valid is not None:  # detection reads the whole slice
+                maps = self._maps(frame, spacing, size)
+            center, score = self._detect(maps.F, maps.S, maps.med, maps.scale, spacing)
             if center is None:
                 status = Status.SEARCHING if status == Status.TRACKING else status
                 if reason is None:
@@ -473,7 +473,7 @@ class AxialTracker(Tracker):
 
         if accepted:
             tr.misses = 0
-            tr.template = self._cut_template(M, center, size)  # updated every frame
+            tr.template = self._cut_template(maps.M, center, size)  # updated every frame
             if detected:
                 tr.first_template = tr.template
             xz0 = to_f0_xz(center)
