@@ -47,37 +47,46 @@ def variance_image(image) -> np.ndarray:
     return v / peak
 
 
-def _parabolic_offset(minus: np.ndarray, centre: np.ndarray, plus: np.ndarray) -> np.ndarray:
+def _parabolic_offset(minus: float, centre: float, plus: float) -> float:
     """Vertex of the parabola through (-1, minus), (0, centre), (1, plus), clipped to
-    [-0.5, 0.5]; 0 where the three points are not a strict maximum."""
+    [-0.5, 0.5]; 0 where the three points are not a strict maximum (or not finite)."""
     denom = minus - 2.0 * centre + plus
-    with np.errstate(divide="ignore", invalid="ignore"):
-        delta = np.where(denom < 0, 0.5 * (minus - plus) / denom, 0.0)
-    return np.clip(np.nan_to_num(delta), -0.5, 0.5)
+    if not denom < 0:
+        return 0.0
+    delta = 0.5 * (minus - plus) / denom
+    return min(max(delta, -0.5), 0.5) if np.isfinite(delta) else 0.0
 
 
 def _refine_peak(score: np.ndarray, index: tuple[int, ...]) -> np.ndarray:
     """Sub-sample offset of the peak of ``score`` at ``index`` along each axis (0 on a
-    border of the score map, where the parabola has no neighbour)."""
-    index_arr = np.asarray(index)
-    shape = np.asarray(score.shape)
+    border of the score map, where the parabola has no neighbour). Scalar arithmetic: one
+    parabola per axis, a handful of samples."""
+    index = tuple(int(i) for i in index)
     offsets = np.zeros(score.ndim)
-    inner = (index_arr > 0) & (index_arr < shape - 1)
-    if not np.any(inner):
-        return offsets
-    eye = np.eye(score.ndim, dtype=int)
-    axes = np.flatnonzero(inner)
-    minus = score[tuple((index_arr - eye[axes]).T)]
-    plus = score[tuple((index_arr + eye[axes]).T)]
-    offsets[axes] = _parabolic_offset(minus, score[index], plus)
+    centre = float(score[index])
+    for ax, i in enumerate(index):
+        if 0 < i < score.shape[ax] - 1:
+            lo = index[:ax] + (i - 1,) + index[ax + 1:]
+            hi = index[:ax] + (i + 1,) + index[ax + 1:]
+            offsets[ax] = _parabolic_offset(float(score[lo]), centre, float(score[hi]))
     return offsets
 
 
 def _half_sizes(half, ndim: int, name: str) -> np.ndarray:
-    h = np.broadcast_to(np.asarray(half), (ndim,)).astype(float)
-    if np.any(h < 0) or np.any(h != np.round(h)):
+    """``half`` (one non-negative integer, or one per axis) as an int array of ``ndim``."""
+    if isinstance(half, (int, np.integer)) and not isinstance(half, bool):
+        h = np.full(ndim, int(half))
+    elif isinstance(half, tuple) and len(half) == ndim and all(
+            isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in half):
+        h = np.array(half, dtype=int)
+    else:
+        f = np.broadcast_to(np.asarray(half), (ndim,)).astype(float)
+        if np.any(f != np.round(f)):
+            raise ValueError(f"{name} must be non-negative integers, got {half!r}")
+        h = f.astype(int)
+    if np.any(h < 0):
         raise ValueError(f"{name} must be non-negative integers, got {half!r}")
-    return h.astype(int)
+    return h
 
 
 class TemplateMatch(NamedTuple):
@@ -120,7 +129,7 @@ def match_template_roi(image, template, center, roi_half_size) -> TemplateMatch:
     tpl = np.asarray(template)
     if img.ndim != 2 or tpl.ndim != 2:
         raise ValueError(f"image and template must be 2-D, got shapes {img.shape} and {tpl.shape}")
-    if not np.ptp(tpl) > 0:
+    if not tpl.max() > tpl.min():
         raise ValueError("template is constant: its normalised cross-correlation is undefined")
     half = _half_sizes(roi_half_size, 2, "roi_half_size")
     c = np.rint(np.asarray(center, dtype=float)).astype(int)
@@ -141,7 +150,9 @@ def match_template_roi(image, template, center, roi_half_size) -> TemplateMatch:
         np.ascontiguousarray(tpl, dtype=np.float32),
         cv2.TM_CCOEFF_NORMED,
     )
-    score = np.nan_to_num(score.astype(float), nan=-1.0)
+    score = score.astype(float)
+    if not np.isfinite(score).all():  # a flat window: no correlation there
+        score = np.nan_to_num(score, nan=-1.0)
     index = np.unravel_index(int(np.argmax(score)), score.shape)
     offset = _refine_peak(score, index)
     tpl_centre = (np.asarray(tpl.shape) - 1) / 2.0
