@@ -16,8 +16,10 @@ __all__ = ["FeatureSource", "Frame", "FrameError", "IntensityFeatures", "Likelih
 
 # onnxruntime threads per modality: the in-plane network on one 500 x 384 frame (252 x 192 on
 # its grid) runs no faster on two threads than on one (0.83 ms at best either way, on the
-# 2-core machine), and a second thread only contends with other work; volumes do use two
-DEFAULT_THREADS = {"inplane": 1, "axial": 2, "volume": 2}
+# 2-core machine), and a second thread only contends with other work; the axial network on a
+# 128 x 128 slice or the tracker's ~80 x 80 box neither (0.29 / 0.13 ms at best; medians at
+# load 5: 0.30 / 0.14 ms on one thread, 0.40 / 0.23 on two); volumes do use two
+DEFAULT_THREADS = {"inplane": 1, "axial": 1, "volume": 2}
 
 
 def learned_features(modality: str, model: str | None = None,
