@@ -98,10 +98,10 @@ from ..backends import (
     match_template_roi,
 )
 from ..features import FeatureSource, Frame
-from ._axial_maps import SliceMaps, region_box, roi_reach_px, slice_maps
+from ._axial_maps import SliceGeometry, SliceMaps, region_box, slice_geometry, slice_maps
 from ._axial_params import AxialParams
 from ._base import NeedleEstimate, Status, Tracker
-from ._cross_section import below_top_edge, bilinear, odd_px, peak_covariance, subpixel_peak
+from ._cross_section import below_top_edge, bilinear, peak_covariance, subpixel_peak
 from ._details import AxialDetails, AxialModel
 
 __all__ = ["AxialParams", "AxialTracker", "map_fit_bicycle"]
@@ -193,6 +193,8 @@ class AxialTracker(Tracker):
                  seed: int | None = None):
         self.params = AxialParams() if params is None else params
         self._planned_rotation_mm: float | None = None
+        self._geometry_key: tuple | None = None
+        self._geometry_cache: SliceGeometry | None = None
         super().__init__(method, features, rng=rng, seed=seed)
 
     def run(self, seq, progress=None) -> list[NeedleEstimate]:
@@ -308,25 +310,29 @@ class AxialTracker(Tracker):
         tr.frozen = tr.pf.stopped
 
     # -- image -------------------------------------------------------------------------------
-    def _maps(self, frame: Frame, spacing: np.ndarray, size: tuple[int, int],
-              roi_rc: np.ndarray | None = None) -> SliceMaps:
+    def _geometry(self, frame: Frame) -> SliceGeometry:
+        """The step's constants for this slice's shape and spacing (kept for the next slice)."""
+        key = (frame.image.shape, tuple(frame.grid.spacing_mm), id(self.features))
+        if self._geometry_key != key:
+            self._geometry_cache = slice_geometry(frame.grid.spacing_mm, self.params,
+                                                  self.features)
+            self._geometry_key = key
+        return self._geometry_cache
+
+    def _maps(self, frame: Frame, g: SliceGeometry, roi_rc: np.ndarray | None = None
+              ) -> SliceMaps:
         """The slice's maps (:func:`~._axial_maps.slice_maps`): over the whole slice, or for a
         learned source with ``learned_roi`` and an ROI centre ``roi_rc``, from the network run
         on the box the tracking step reads (:func:`~._axial_maps.roi_reach_px`) plus the
         source's context."""
         p = self.params
-        sigma = p.needle_radius_mm / float(spacing.mean())
         learned = self._is_learned()
         template = p.learned_template if learned else None
         box = None
         if roi_rc is not None and learned and p.learned_roi:
-            drift = np.maximum(np.rint(p.drift_tolerance_mm / spacing), 1).astype(int)
-            refine = np.ceil(p.needle_radius_mm / spacing).astype(int)
-            half = roi_reach_px(size, drift, sigma, refine)
-            context = np.ceil(float(getattr(self.features, "margin_mm", 0.0)) / spacing)
-            box = region_box(frame.image.shape, roi_rc, half, context,
-                             int(getattr(self.features, "multiple", 1)))
-        return slice_maps(self.features, frame, sigma, p.score_floor, template, box)
+            box = region_box(frame.image.shape, roi_rc, g.half_px, g.context_px, g.align)
+        return slice_maps(self.features, frame, g.sigma_px, p.score_floor, template, box,
+                          g.context_px)
 
     def _is_learned(self) -> bool:
         return getattr(self.features, "kind", "") == "learned"
@@ -365,13 +371,12 @@ class AxialTracker(Tracker):
             return "peak" if getattr(self.features, "kind", "") == "learned" else "top_edge"
         return a
 
-    def _correct_drift(self, F: np.ndarray, m, size: tuple[int, int], spacing: np.ndarray):
+    def _correct_drift(self, F: np.ndarray, m, g: SliceGeometry, spacing: np.ndarray):
         """Matthews, Ishikawa & Baker 2004's template update with drift correction: align the
         first template near the match of the updated one and keep that alignment when it lies
         within ``drift_tolerance_mm``; otherwise the updated template's match stands."""
         tr, p = self._track, self.params
-        tol_px = np.maximum(np.rint(p.drift_tolerance_mm / spacing), 1).astype(int)
-        half = (size[0] // 2 + tol_px[0] + 1, size[1] // 2 + tol_px[1] + 1)
+        half = tuple(int(n) for n in np.asarray(g.size) // 2 + g.drift_px + 1)
         m0 = match_template_roi(F, tr.first_template, m.center, half)
         if np.linalg.norm((m0.center - m.center) * spacing) <= p.drift_tolerance_mm:
             return m0._replace(peak=m.peak)  # the NCC peak stays the paper's
@@ -390,7 +395,8 @@ class AxialTracker(Tracker):
         tr.n_frames += 1
         grid = frame.grid
         spacing = np.asarray(grid.spacing_mm, dtype=float)  # (row, col) = (z, x)
-        size = (odd_px(p.template_mm, spacing[0]), odd_px(p.template_mm, spacing[1]))
+        g = self._geometry(frame)
+        size = g.size
 
         def to_f0_xz(rc):
             xz = grid.index_to_points(np.asarray(rc, dtype=float))
@@ -416,13 +422,13 @@ class AxialTracker(Tracker):
                 pred_rc = from_f0_rc(pred_xz)
                 if np.linalg.norm((pred_rc - prev_rc) * spacing) <= p.max_jump_mm:
                     roi_rc, roi_source = pred_rc, "model"
-            maps = self._maps(frame, spacing, size, roi_rc)
+            maps = self._maps(frame, g, roi_rc)
             M = maps.M  # what the NCC templates are cut from
             m = None
             try:
                 m = match_template_roi(M, tr.template, roi_rc, size)  # section II: NCC in ROI
                 if p.drift_correction:
-                    m = self._correct_drift(M, m, size, spacing)
+                    m = self._correct_drift(M, m, g, spacing)
             except ValueError as exc:  # ROI off the image, or a constant template
                 reason = str(exc)
             if m is not None:
@@ -455,7 +461,7 @@ class AxialTracker(Tracker):
         if status != Status.TRACKING or tr.template is None:
             # (re-)detection: the maximum of the smoothed map replaces the user's click
             if maps is None or maps.valid is not None:  # detection reads the whole slice
-                maps = self._maps(frame, spacing, size)
+                maps = self._maps(frame, g)
             center, score = self._detect(maps.F, maps.S, maps.med, maps.scale, spacing)
             if center is None:
                 status = Status.SEARCHING if status == Status.TRACKING else status

@@ -14,13 +14,16 @@ the whole slice.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 
 from ..backends import variance_image
+from ._cross_section import odd_px
 
-__all__ = ["SliceMaps", "region_box", "roi_reach_px", "slice_maps"]
+__all__ = ["SliceGeometry", "SliceMaps", "region_box", "roi_reach_px", "slice_geometry",
+           "slice_maps"]
 
 
 @dataclass(frozen=True)
@@ -38,6 +41,32 @@ class SliceMaps:
     scale: float
     M: np.ndarray
     valid: tuple[slice, slice] | None
+
+
+class SliceGeometry(NamedTuple):
+    """Constants of the tracking step for slices of one shape and spacing, in pixels."""
+
+    size: tuple[int, int]  # the NCC template, h x w (odd)
+    sigma_px: float  # the Gaussian of the needle's radius that smooths the feature map
+    drift_px: np.ndarray  # (rows, cols) the drift correction's tolerance
+    half_px: np.ndarray  # (rows, cols) half-size of the box the step reads (roi_reach_px)
+    context_px: tuple[int, int]  # the source's margin_mm of context (0: none)
+    align: int  # the network's input multiple: where its strides line up with the slice's
+
+
+def slice_geometry(spacing, params, features) -> SliceGeometry:
+    """:class:`SliceGeometry` for slices at ``spacing`` (row, col mm) under ``params``
+    (:class:`~._axial_params.AxialParams`) and a source whose ``margin_mm`` and ``multiple``
+    are read where it has them."""
+    spacing = np.asarray(spacing, dtype=float)
+    size = tuple(odd_px(params.template_mm, s) for s in spacing)
+    sigma = params.needle_radius_mm / float(spacing.mean())
+    drift = np.maximum(np.rint(params.drift_tolerance_mm / spacing), 1).astype(int)
+    refine = np.ceil(params.needle_radius_mm / spacing).astype(int)
+    margin = float(getattr(features, "margin_mm", 0.0))
+    context = tuple(int(np.ceil(margin / s)) for s in spacing)
+    return SliceGeometry(size, sigma, drift, roi_reach_px(size, drift, sigma, refine), context,
+                         int(getattr(features, "multiple", 1)))
 
 
 def blur_radius_px(sigma_px: float) -> int:
@@ -122,11 +151,11 @@ def template_image(F: np.ndarray, image, mode: str | None, box=None) -> np.ndarr
 
 
 def slice_maps(features, frame, sigma_px: float, floor: float, template: str | None,
-               box=None) -> SliceMaps:
+               box=None, context_px=(0, 0)) -> SliceMaps:
     """The maps of ``frame`` from ``features``: over the whole slice, or (``box``, rows and
-    columns) from one run of the source on the box plus its ``margin_mm`` of context. The
-    smoothing and the robust statistics then cover that context too (where the maps hold);
-    the template image covers the box.
+    columns) from one run of the source on the box plus its context (``context_px``, the
+    source's ``margin_mm`` in pixels). The smoothing and the robust statistics then cover that
+    context too (where the maps hold); the template image covers the box.
 
     ``sigma_px``: the Gaussian's sigma in pixels (the needle's radius); ``floor``: the least
     robust scale; ``template``: :func:`template_image`'s ``mode``."""
@@ -136,10 +165,8 @@ def slice_maps(features, frame, sigma_px: float, floor: float, template: str | N
         med, scale = _robust(S, floor)
         return SliceMaps(F, S, med, scale, template_image(F, frame.image, template), None)
     F = np.asarray(features.likelihood(frame, box).shaft, dtype=np.float32)
-    spacing = frame.grid.spacing_mm
-    k = [int(np.ceil(float(getattr(features, "margin_mm", 0.0)) / s)) for s in spacing]
     valid = tuple(slice(max(b.start - m, 0), min(b.stop + m, n))
-                  for b, m, n in zip(box, k, F.shape, strict=True))
+                  for b, m, n in zip(box, context_px, F.shape, strict=True))
     S = np.zeros(F.shape, np.float32)
     S[valid] = cv2.GaussianBlur(np.ascontiguousarray(F[valid]), (0, 0), sigma_px)
     med, scale = _robust(S[valid], floor)
