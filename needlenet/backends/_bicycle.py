@@ -96,9 +96,9 @@ def heading_increment(alpha_mm, radius_mm):
 
 def _arc(u_c, v_c, r, v):
     """Eq. (3) on the branch through the needle: u = u_c - sign(R) sqrt(R^2 - (v - v_c)^2)
-    (the point lies at -R (cos theta, -sin theta) from the centre); NaN off the circle."""
-    with np.errstate(invalid="ignore"):
-        return u_c - np.sign(r) * np.sqrt(r**2 - (v - v_c) ** 2)
+    (the point lies at -R (cos theta, -sin theta) from the centre); NaN off the circle (the
+    caller silences the square root's warning there)."""
+    return u_c - np.sign(r) * np.sqrt(r**2 - (v - v_c) ** 2)
 
 
 def bicycle_path(v, R, theta0, turn_depths=()) -> np.ndarray:
@@ -131,7 +131,9 @@ def bicycle_path(v, R, theta0, turn_depths=()) -> np.ndarray:
     v = np.asarray(v, dtype=float)
     if v.ndim != 1:
         raise ValueError(f"v must be a 1-D array of depths, got shape {v.shape}")
-    R, theta0 = np.broadcast_arrays(np.asarray(R, dtype=float), np.asarray(theta0, dtype=float))
+    R, theta0 = np.asarray(R, dtype=float), np.asarray(theta0, dtype=float)
+    if R.shape != theta0.shape:
+        R, theta0 = np.broadcast_arrays(R, theta0)
     r = np.where(R == 0, np.nan, R)[..., None]
     th = theta0[..., None]
     turns = np.sort(np.asarray(turn_depths, dtype=float).ravel())
@@ -139,20 +141,23 @@ def bicycle_path(v, R, theta0, turn_depths=()) -> np.ndarray:
         raise ValueError("turn_depths must be positive (the path starts at v = 0)")
     u_c = r * np.cos(th)  # eq. (4), u_turn(0) = 0
     v_c = -r * np.sin(th)  # eq. (4), v_turn(0) = 0
-    u = np.empty(r.shape[:-1] + v.shape)
-    starts = np.concatenate([[-np.inf], turns])
-    ends = np.concatenate([turns, [np.inf]])
-    for i, (start, end) in enumerate(zip(starts, ends, strict=True)):
-        in_segment = (v >= start) & (v < end)
-        u[..., in_segment] = _arc(u_c, v_c, r, v[in_segment])  # eq. (3)
-        if i < turns.size:
-            v_turn = end
-            u_turn = _arc(u_c, v_c, r, v_turn)  # eq. (3) at the turn
-            # eq. (4) for segment i + 1 with R -> -R and theta_turn from segment i
-            # (sin = (v_turn - v_c) / R, cos = (u_c - u_turn) / R):
-            # u_c(i+1) = u_turn - R cos(theta_turn) = 2 u_turn - u_c(i),
-            # v_c(i+1) = v_turn + R sin(theta_turn) = 2 v_turn - v_c(i).
-            u_c, v_c, r = 2 * u_turn - u_c, 2 * v_turn - v_c, -r
+    with np.errstate(invalid="ignore"):
+        if not turns.size:  # one arc: eq. (3) at every depth
+            return _arc(u_c, v_c, r, v)
+        u = np.empty(r.shape[:-1] + v.shape)
+        starts = np.concatenate([[-np.inf], turns])
+        ends = np.concatenate([turns, [np.inf]])
+        for i, (start, end) in enumerate(zip(starts, ends, strict=True)):
+            in_segment = (v >= start) & (v < end)
+            u[..., in_segment] = _arc(u_c, v_c, r, v[in_segment])  # eq. (3)
+            if i < turns.size:
+                v_turn = end
+                u_turn = _arc(u_c, v_c, r, v_turn)  # eq. (3) at the turn
+                # eq. (4) for segment i + 1 with R -> -R and theta_turn from segment i
+                # (sin = (v_turn - v_c) / R, cos = (u_c - u_turn) / R):
+                # u_c(i+1) = u_turn - R cos(theta_turn) = 2 u_turn - u_c(i),
+                # v_c(i+1) = v_turn + R sin(theta_turn) = 2 v_turn - v_c(i).
+                u_c, v_c, r = 2 * u_turn - u_c, 2 * v_turn - v_c, -r
     return u
 
 
