@@ -47,6 +47,9 @@ Where the paper leaves things open, or where we depart from it (each is a field 
   more than ``max_jump_mm`` from the previous centre: a model that far off (early, or long
   after D) would put the needle outside the ROI, so the previous centre is used instead
   (``details.roi_source``).
+* Learned sources, while tracking, run the network only on the box the step reads around the
+  ROI plus the source's context (``learned_roi``, :mod:`._axial_maps`): the paper's ROI is
+  all the tracker looks at once it tracks. Detection and re-detection read the whole slice.
 * phi is re-estimated by PCA from all accepted centres at every frame (the paper computes it
   at 10 mm, where a needle of R = 1500 mm has deflected by 0.03 mm and PCA returns noise), the
   history is projected again, and the u axis is oriented so that the deflection is positive
