@@ -507,8 +507,9 @@ class Scanner:
         rev_amp = ((spec.reverb_decay ** k)[:, None] * coherent[None, :]).reshape(-1)
         # the bevel: a bright echo at the tip
         tip_amp = spec.tip_gain * spec.echo * norm[-1] * w_e[-1] if keep_tip else 0.0
-        all_pts = np.concatenate([rev_pts, wall[-1:]])
-        all_amp = np.concatenate([rev_amp, [tip_amp]]).astype(np.float32)
+        streak_pts, streak_amp = _streak(spec, wall, tan, coherent, psi, step_mm, keep_tip)
+        all_pts = np.concatenate([rev_pts, wall[-1:], streak_pts])
+        all_amp = np.concatenate([rev_amp, [tip_amp], streak_amp]).astype(np.float32)
         all_phase = np.zeros(len(all_amp))
         if f_diff > 0:
             # diffuse scatterers across the shaft (wall to far wall) with fixed random phases:
@@ -605,3 +606,18 @@ class Scanner:
         if noise.ndim == 3:
             return cv2.magnitude(noise[..., 0], noise[..., 1])
         return np.sqrt(noise[..., 0] ** 2 + noise[..., 1] ** 2)
+
+
+def _streak(spec, wall: np.ndarray, tan: np.ndarray, coherent: np.ndarray, psi: np.ndarray,
+            step_mm: float, keep_tip: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The coherent streak of unfocused imaging past the tip (:class:`NeedleSpec`'s
+    ``streak_db``): points every ``step_mm`` along the tip's tangent from the tip's wall,
+    until 40 dB below its start or 15 mm, and their amplitudes; empty without a streak."""
+    if spec.streak_db is None or not keep_tip or len(wall) == 0:
+        return np.zeros((0, 3)), np.zeros(0)
+    start_db = spec.streak_db + spec.streak_db_per_deg * float(np.rad2deg(psi[-1]))
+    length = min(15.0, 40.0 / max(spec.streak_fade_db_per_mm, 1e-6))
+    s = step_mm * np.arange(1, int(length / step_mm) + 1)
+    amp = coherent[-1] * 10.0 ** ((start_db - spec.streak_fade_db_per_mm * s) / 20.0)
+    return wall[-1] + s[:, None] * tan[-1], amp
+

@@ -213,6 +213,15 @@ class NeedleSpec:
     # reflected coherently; its mean intensity per mm of shaft equals the coherent echo's
     diffuse_fraction: float = 0.0
     diffuse_seed: int = 0  # the diffuse scatterers' phases (fixed along the shaft)
+    # unfocused (plane- or diverging-wave) transmits image a specular shaft's echo on along
+    # its axis past the tip: a coherent streak whose level at the tip is streak_db re the
+    # shaft's echo when the beam meets the shaft at normal incidence, streak_db_per_deg lower
+    # per degree of incidence, fading by streak_fade_db_per_mm past the tip (None: focused
+    # imaging, no streak). PyMUST, L11-5v, three plane waves: about -20, -15, -27 and -40 dB
+    # at 8, 15, 25 and 45 degrees, fading 0.7-2 dB/mm; P4-2v at 30 degrees: -16 dB, 3-4 dB/mm
+    streak_db: float | None = None
+    streak_db_per_deg: float = -0.6
+    streak_fade_db_per_mm: float = 2.0
 
     @property
     def radius_mm(self) -> float:

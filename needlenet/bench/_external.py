@@ -86,8 +86,19 @@ def pooled_metrics(per_sequence: list[dict]) -> dict:
                             "false_tracking_frames")))
 
 
+# the model-choice score (docs/notes/inplane.md): the share of needle frames tracked within
+# GOOD_MM of the labelled tip (the 95th-percentile target) less the share of
+# needle-free frames reported tracking
+GOOD_MM = 3.0
+
+
 def _summary(err, n_needle, n_tracked, n_free, n_false) -> dict:
+    n_good = int(np.count_nonzero(err <= GOOD_MM))
+    score = None
+    if n_needle or n_free:
+        score = (n_good / n_needle if n_needle else 0.0) - (n_false / n_free if n_free else 0.0)
     return {
+        "score": score, "within_3mm_frames": n_good,
         "tip_error_median_mm": float(np.median(err)) if err.size else None,
         "tip_error_p95_mm": float(np.percentile(err, 95)) if err.size else None,
         "tracked_fraction": n_tracked / n_needle if n_needle else None,
@@ -170,7 +181,7 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
         rows.append(row)
         log(f"  external {'pooled':28s} {kind:9s} median {_fmt(row['tip_error_median_mm'])} "
             f"p95 {_fmt(row['tip_error_p95_mm'])} mm, tracked {_fmt(row['tracked_fraction'])}, "
-            f"false {_fmt(row['false_tracking_fraction'])}")
+            f"false {_fmt(row['false_tracking_fraction'])}, score {_fmt(row['score'], 3)}")
     return {"rows": rows, "traces": traces,
             "data": str(Path(directory) if directory is not None else data_dir())}
 
@@ -183,9 +194,11 @@ def markdown(result: dict, machine: dict) -> str:
     lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
              "Default in-plane tracker (no angle, no gauge given). Tip error over needle frames "
              "reported `tracking`; tracked: needle frames reported `tracking`; false: "
-             "needle-free frames reported `tracking`.", "",
+             "needle-free frames reported `tracking`; score: needle frames tracked within "
+             f"{GOOD_MM:g} mm of the tip over needle frames, less the false fraction (how models "
+             "are chosen, docs/notes/inplane.md).", "",
              "| sequence | probe | needle | features | median (mm) | 95th (mm) | tracked | "
-             "false |", "|---|---|---|---|---|---|---|---|"]
+             "false | score |", "|---|---|---|---|---|---|---|---|---|"]
     for r in result["rows"]:
         if r["sequence"] == "pooled":
             needle = "-"
@@ -197,7 +210,8 @@ def markdown(result: dict, machine: dict) -> str:
         name = f"**{r['sequence']}**" if r["sequence"] == "pooled" else r["sequence"]
         lines.append(f"| {name} | {r['probe'] or '-'} | {needle} | {r['features']} | "
                      f"{_fmt(r['tip_error_median_mm'])} | {_fmt(r['tip_error_p95_mm'])} | "
-                     f"{_pct(r['tracked_fraction'])} | {_pct(r['false_tracking_fraction'])} |")
+                     f"{_pct(r['tracked_fraction'])} | {_pct(r['false_tracking_fraction'])} | "
+                     f"{_fmt(r.get('score'), 3)} |")
     return "\n".join(lines)
 
 
