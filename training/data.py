@@ -199,7 +199,8 @@ def randomize_inplane(rng: np.random.Generator, common: dict) -> dict:
     through the lateral border 35%; shallow (3-20 degree) insertions 40%; compounding 2-3
     looks 50%; grey maps 50%; TGC curves 50%; capture margins 30%; sector masks 20%;
     probe-face reverberation 40%; an interface parallel to the needle 30%; vessels 25%;
-    shadows 15%; diffuse shafts 30%; no reverberation tail 25%; dark bevels 25%."""
+    shadows 15%; diffuse shafts 30%; no reverberation tail 25%; dark bevels 25%; the streak
+    of unfocused imaging past the tip 30% (levels around those measured on PyMUST)."""
     imaging = dict(common["imaging_overrides"])
     imaging.update({
         "center_frequency_mhz": float(np.exp(rng.uniform(np.log(3.0), np.log(15.0)))),
@@ -255,6 +256,9 @@ def randomize_inplane(rng: np.random.Generator, common: dict) -> dict:
         "vessels": int(rng.integers(1, 3)) if _maybe(rng, 0.25) else 0,
         "shadows": int(rng.integers(1, 3)) if _maybe(rng, 0.15) else 0,
     }
+    if _maybe(rng, 0.3):  # unfocused (plane-wave) imaging: the streak past the tip
+        needle.update(streak_db=_u(rng, -20, -6), streak_db_per_deg=_u(rng, -0.9, -0.4),
+                      streak_fade_db_per_mm=_u(rng, 0.5, 4.0))
     if _maybe(rng, 0.3):
         out.update(interface_offset_mm=float(rng.choice([-1, 1]) * rng.uniform(1.2, 8.0)),
                    interface_brightness=_u(rng, 1.5, 6.0), interface_factor=_u(rng, 0.6, 1.5))
