@@ -344,21 +344,21 @@ class LearnedFeatures(FeatureSource):
             self.check_frame_size(np.shape(image), spacing_mm)
         except ModelError as exc:
             raise FrameError(str(exc)) from None
-        up = self._model_grid_maps(image, spacing_mm, level)
-        # fmax/fmin clip like np.clip but turn NaN into 0: a model that fails somewhere gives
-        # no evidence there (the tracker then says lost), never a NaN estimate
-        return np.fmin(np.fmax(to_frame_grid(up, image.shape), 0.0), 1.0)
+        # linear resampling keeps the clipped maps in [0, 1]
+        return to_frame_grid(self._model_grid_maps(image, spacing_mm, level), image.shape)
 
     def _model_grid_maps(self, image: np.ndarray, spacing_mm, level=None) -> np.ndarray:
-        """The network's maps (2, *model shape) on the model's grid, unclipped."""
+        """The network's maps (2, *model shape) on the model's grid, in [0, 1]."""
         x = to_model_grid(image, spacing_mm, self.spacing_mm)
         if level is None:
             level = frame_statistics(image, self.normalization)
         x = normalize(x, self.normalization, level)
         xp, crop = pad_to_multiple(x, self.multiple)
         y = self.session.run(["likelihood"], {"image": xp[None, None].astype(np.float32)})[0][0]
-        up = to_frame_grid(y, xp.shape)  # stride-2 output back to the padded model grid
-        return up[(slice(None),) + crop]
+        up = to_frame_grid(y, xp.shape)[(slice(None),) + crop]  # stride 2 -> the model grid
+        # fmax/fmin clip like np.clip but turn NaN into 0: a model that fails somewhere gives
+        # no evidence there (the tracker then says lost), never a NaN estimate
+        return np.fmin(np.fmax(up, 0.0, out=up), 1.0, out=up)
 
     def native_likelihood(self, frame: Frame):
         """2D frames: the maps on the model's grid (:func:`model_grid`), without their return
@@ -370,8 +370,7 @@ class LearnedFeatures(FeatureSource):
             self.check_frame_size(im.shape, frame.grid.spacing_mm)
         except ModelError as exc:
             raise FrameError(str(exc)) from None
-        up = self._model_grid_maps(im, frame.grid.spacing_mm)
-        maps = np.fmin(np.fmax(up, 0.0), 1.0)
+        maps = self._model_grid_maps(im, frame.grid.spacing_mm)
         return (Likelihood(shaft=maps[0], tip=maps[1], source=self.name),
                 model_grid(frame.grid, maps.shape[1:]))
 
