@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
@@ -36,8 +37,44 @@ def tube_distances(grid: Grid, pts: np.ndarray, radius_mm: float, exact: bool = 
     distance transform of the polyline's pixels in a crop finds the candidates and, for each,
     the vertex nearby; the exact distance to the polyline's segments around that vertex
     decides. With ``exact=False`` the transform's distance to the nearest polyline pixel is used
-    (within half a pixel diagonal; several times faster).
+    (within half a pixel diagonal; several times faster). Indices come sorted.
     """
+    sp = np.asarray(grid.spacing_mm, float)
+    if not exact and grid.ndim == 2 and sp[0] == sp[1]:
+        return _pixel_tube_2d(grid, pts, radius_mm)
+    return _tube_distances_edt(grid, pts, radius_mm, exact)
+
+
+def _pixel_tube_2d(grid: Grid, pts: np.ndarray, radius_mm: float):
+    """``tube_distances(..., exact=False)`` on a 2D grid of square pixels: the same samples
+    and distances (to the last bit but for ties) from OpenCV's exact Euclidean transform
+    (Felzenszwalb's, float32), about three times faster than scipy's feature transform."""
+    empty = np.zeros(0, np.int64), np.zeros(0)
+    pts = np.asarray(pts, float)
+    if len(pts) == 0:
+        return empty
+    sp = float(grid.spacing_mm[0])
+    shape = np.asarray(grid.shape)
+    near = np.rint(grid.points_to_index(pts)).astype(np.int64)
+    near = near[np.all((near >= 0) & (near < shape), axis=1)]  # the polyline's pixels
+    if len(near) == 0:
+        return empty
+    pad = int(np.ceil(radius_mm / sp)) + 2
+    lo = np.maximum(near.min(0) - pad, 0)
+    hi = np.minimum(near.max(0) + pad + 1, shape)
+    marks = np.full((int(hi[0] - lo[0]), int(hi[1] - lo[1])), 255, np.uint8)
+    marks[near[:, 0] - lo[0], near[:, 1] - lo[1]] = 0
+    d_px = cv2.distanceTransform(marks, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).reshape(-1)
+    # float32 candidates with a margin; the distance itself from the integer squared distance
+    cand = np.flatnonzero(d_px <= np.float32(radius_mm / sp * (1.0 + 1e-5)))
+    d = np.sqrt(np.rint(np.square(d_px[cand].astype(np.float64)))) * sp
+    sel = d <= radius_mm
+    rows, cols = np.divmod(cand[sel], marks.shape[1])
+    return (rows + lo[0]) * grid.shape[1] + (cols + lo[1]), d[sel]
+
+
+def _tube_distances_edt(grid: Grid, pts: np.ndarray, radius_mm: float, exact: bool):
+    """:func:`tube_distances` by scipy's feature transform (any grid)."""
     empty = np.zeros(0, np.int64), np.zeros(0)
     pts = np.asarray(pts, float)
     if len(pts) == 0:
