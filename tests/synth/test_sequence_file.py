@@ -33,6 +33,20 @@ def test_round_trip(tmp_path, modality):
     assert r.images.dtype == np.uint8
 
 
+def test_images_stored_labels_deflated(tmp_path):
+    # speckle does not compress: the images member is stored, the rest deflated; np.load and
+    # the reader both read it back
+    s = _seq()
+    path = synth.save_sequence(s, tmp_path / "s.npz")
+    with zipfile.ZipFile(path) as zf:
+        assert zf.getinfo("images.npy").compress_type == zipfile.ZIP_STORED
+        assert zf.getinfo("tip_mm.npy").compress_type == zipfile.ZIP_DEFLATED
+    with np.load(path) as z:
+        np.testing.assert_array_equal(z["images"], s.images)
+    np.testing.assert_array_equal(synth.load_sequence(path).images, s.images)
+    assert path.read_bytes() == synth.save_sequence(s, tmp_path / "t.npz").read_bytes()
+
+
 def test_refuses_to_overwrite(tmp_path):
     path = tmp_path / "s.npz"
     synth.save_sequence(_seq(), path)
