@@ -82,12 +82,26 @@ def test_line_from_samples_is_zhao_b4_and_batched_residuals_match_single():
     # Zhao eq. (B4): origin N1, unit direction towards N2; both points at distance 0.
     np.testing.assert_allclose(lines.origin, samples[:, 0])
     np.testing.assert_allclose(np.linalg.norm(lines.direction, axis=1), 1.0)
-    np.testing.assert_allclose(lines.residuals(samples[2])[2], 0.0, atol=1e-12)
+    # distances come from |p - o|^2 - ((p - o) . u)^2: a point on the line is at 0 to within
+    # sqrt(machine epsilon) of the coordinates
+    np.testing.assert_allclose(lines.residuals(samples[2])[2], 0.0, atol=1e-7)
     points = rng.normal(size=(40, 3))
     batch = lines.residuals(points)
     assert batch.shape == (5, 40)
     for i in range(5):
         np.testing.assert_allclose(batch[i], lines[i].residuals(points), rtol=1e-12)
+
+
+def test_line_residuals_are_the_distance_of_the_projection():
+    """Against the distance of each point to its orthogonal projection on the line, at
+    millimetre coordinates of a 128^3 volume."""
+    rng = np.random.default_rng(8)
+    lines = LineModel(rng.uniform(0, 60, (16, 3)), rng.normal(size=(16, 3)))
+    points = rng.uniform(0, 60, (500, 3))
+    d = points[None] - lines.origin[:, None]
+    t = np.einsum("bnd,bd->bn", d, lines.direction)
+    direct = np.linalg.norm(d - t[..., None] * lines.direction[:, None], axis=-1)
+    np.testing.assert_allclose(lines.residuals(points), direct, atol=1e-9)
 
 
 def test_curve_from_samples_interpolates_control_points():
