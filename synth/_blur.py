@@ -56,11 +56,15 @@ def _gaussian(sigma: float, radius: int) -> np.ndarray:
 def blur_axis(arr: np.ndarray, axis: int, sigma_rows: np.ndarray) -> np.ndarray:
     """Gaussian blur of a (..., 2) array along ``axis`` with a sigma (px, splat kernel
     included) per row of axis 0; along axis 0 itself the median sigma is used. A volume,
-    float32 or float64, comes back float32 (the input itself when nothing is blurred)."""
+    float32 or float64, comes back float32 (the input itself when nothing is blurred).
+
+    ``arr`` may hold only the first rows of the grid ``sigma_rows`` describes (the rest being
+    zero): it is blurred with the whole grid's bands and median, as the whole grid would be."""
     bands = _bands(sigma_rows, varying=axis != 0)
     if bands is None:
         return arr
     anchors, w = bands
+    w = w[:arr.shape[0]]
     if arr.ndim == 4 and arr.dtype in (np.float32, np.float64):
         radius = max(int(3.0 * a + 0.5) if a >= 0.05 else 0 for a in anchors)
         g = np.stack([_gaussian(a, radius) for a in anchors])
