@@ -545,7 +545,9 @@ class Scanner:
         sl = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi, strict=True))
         # the echo is zero from its last splatted row plus the PSF's pad down: only the
         # shadow reaches the crop's last row
-        iq_rows = int(min(np.ceil(sp_idx[:, 0].max()) + pad[0] + 1, hi[0])) - int(lo[0])
+        iq_rows = crop[0]
+        if len(sp_idx):
+            iq_rows = int(min(np.ceil(sp_idx[:, 0].max()) + pad[0] + 1, hi[0])) - int(lo[0])
         # the specular echo is coherent along the shaft: zero phase (no speckle on the needle)
         iq = splat(sp_idx - lo, all_amp[keep], all_phase[keep], (iq_rows,) + crop[1:])
         for axis, s in enumerate(self._sig_px):

@@ -74,3 +74,11 @@ def test_pixel_tube_outside_grid_is_empty():
     assert idx.shape == (0,) and d.shape == (0,)
     idx, d = tube_distances(grid, np.zeros((0, 2)), 1.0, exact=False)
     assert idx.shape == (0,) and d.shape == (0,)
+
+
+def test_needle_far_out_of_plane_renders_without_echo():
+    # every echo below the amplitude floor: no splatted point, only the shadow's crop
+    import synth
+
+    seq = synth.generate("inplane", seed=21, angle_deg=35.0, elevation_offset_mm=12.0, frames=3)
+    assert seq.images.shape[0] == 3 and not seq.visible.any()
