@@ -54,6 +54,14 @@ from ..backends import (
 from ..features import FeatureSource, Frame, line_contrast
 from ._base import NeedleEstimate, Status, Tracker
 from ._details import LineDetails
+from ._inplane_geometry import (
+    AROUND,
+    distance_to_edge,
+    entry_to_tip,
+    imaged_region,
+    on_line,
+    sample_grid,
+)
 from ._inplane_line_echo import EchoTestParams, echo_along
 
 __all__ = ["LineTrackerParams", "LineTracker"]
@@ -240,7 +248,7 @@ class LineTracker(Tracker):
     def _inner_region(self, frame: Frame) -> np.ndarray:
         """The imaged region less ``mask_edge_mm`` along the edges of margins and masks (the
         frame's own border is no such edge)."""
-        valid = _imaged_region(frame)
+        valid = imaged_region(frame)
         if valid.all():
             return valid
         dz, dx = frame.grid.spacing_mm
@@ -273,7 +281,7 @@ class LineTracker(Tracker):
         def straight_mm(point: np.ndarray) -> float:
             """Distance (mm) from ``point`` to the edge of ``inner`` in any direction (up to
             ``reach``)."""
-            return _distance_to_edge(inner, frame, point, _AROUND, max_mm=reach)
+            return distance_to_edge(inner, frame, point, AROUND, max_mm=reach)
 
         def ends(seg: NeedleLine) -> tuple[float, float, float]:
             """(start's and end's distance outwards along the line, the entry end's distance
@@ -281,8 +289,8 @@ class LineTracker(Tracker):
             a descending segment, either end of a near-horizontal one."""
             key = (*seg.start_mm, *seg.end_mm)
             if key not in cache:
-                a = _distance_to_edge(inner, frame, seg.start_mm, -seg.direction, max_mm=reach)
-                b = _distance_to_edge(inner, frame, seg.end_mm, seg.direction, max_mm=reach)
+                a = distance_to_edge(inner, frame, seg.start_mm, -seg.direction, max_mm=reach)
+                b = distance_to_edge(inner, frame, seg.end_mm, seg.direction, max_mm=reach)
                 d = seg.direction
                 if abs(d[1]) < sin_min:
                     entry = min(a, b, straight_mm(seg.start_mm), straight_mm(seg.end_mm))
@@ -309,7 +317,7 @@ class LineTracker(Tracker):
                 if self._axis is None:
                     return (f"the {seg.length_mm:.0f} mm line floats in the tissue; a needle is "
                             "first taken where it enters through the edge of the view")
-                if not _on_line(seg, *self._axis, p.track_window_deg, p.track_window_mm):
+                if not on_line(seg, *self._axis, p.track_window_deg, p.track_window_mm):
                     return (f"the {seg.length_mm:.0f} mm line floats in the tissue off the axis "
                             "of the needle seen entering")
             if self.features.kind != "learned":
@@ -421,7 +429,7 @@ class LineTracker(Tracker):
         """Whether ``seg`` lies within the tracking window of the tracked line."""
         if not seg or self._dir is None:
             return False
-        return _on_line(seg, self._line_point, self._dir, self.params.track_window_deg,
+        return on_line(seg, self._line_point, self._dir, self.params.track_window_deg,
                         self.params.track_window_mm)
 
     def _is_needle(self, seg: NeedleLine) -> bool:
@@ -448,7 +456,7 @@ class LineTracker(Tracker):
         """The segment from its entry end to its tip end (see the module's doc)."""
         if self._dir is not None:
             return seg if float(seg.direction @ self._dir) >= 0 else seg.reversed()
-        return _entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, valid)
+        return entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, valid)
 
     def _tip(self, seg: NeedleLine, tip_map, grid) -> tuple[np.ndarray, bool]:
         """The tip (x, z) on the centre line: the segment's far end, moved to the tip map's
@@ -464,7 +472,7 @@ class LineTracker(Tracker):
             step = p.search.work_spacing_mm / 2
             s = np.arange(-back, ahead + 1e-9, step)
             pts = end[None] + s[:, None] * seg.direction[None]
-            vals = _sample_grid(np.asarray(tip_map, np.float32), grid, pts)
+            vals = sample_grid(np.asarray(tip_map, np.float32), grid, pts)
             k = int(np.argmax(vals))
             if vals[k] >= p.tip_map_min:
                 end = pts[k]
@@ -519,89 +527,3 @@ class LineTracker(Tracker):
                 segment_length_mm=seg.length_mm, tip_measurement_mm=measured_mm,
                 tip_from_tip_map=used_tip_map, measurement_accepted=accepted,
                 restarted=restarted))
-
-
-def _on_line(seg: NeedleLine, point: np.ndarray, direction: np.ndarray, window_deg: float,
-             window_mm: float) -> bool:
-    """Whether ``seg`` runs within ``window_deg`` of the line (``point``, ``direction``) with
-    its midpoint within ``window_mm`` of it."""
-    cos = abs(float(seg.direction @ direction))
-    n = np.array([-direction[1], direction[0]])
-    mid = 0.5 * (seg.start_mm + seg.end_mm)
-    return cos >= np.cos(np.deg2rad(window_deg)) and abs(float((mid - point) @ n)) <= window_mm
-
-
-def _entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float,
-                  valid: np.ndarray) -> NeedleLine:
-    """``seg`` from its entry end to its tip end: the deeper end is the tip of a segment that
-    descends by ``min_angle_deg`` or more; else the entry is the end nearer the edge of the
-    imaged region."""
-    d = seg.direction
-    if abs(d[1]) >= np.sin(np.deg2rad(min_angle_deg)):
-        return seg if d[1] > 0 else seg.reversed()
-    a = _distance_to_edge(valid, frame, seg.start_mm, -d)
-    b = _distance_to_edge(valid, frame, seg.end_mm, d)
-    return seg if a <= b else seg.reversed()
-
-
-def _sample_grid(values: np.ndarray, grid, pts: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a map on ``grid`` at points (N, 2) in mm; 0 outside."""
-    idx = grid.points_to_index(pts)  # (N, 2) as (row, col)
-    out = cv2.remap(values, idx[:, 1].astype(np.float32).reshape(1, -1),
-                    idx[:, 0].astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-    return out.ravel()
-
-
-def _imaged_region(frame: Frame) -> np.ndarray:
-    """Where the frame holds an image: not black capture margin or outside a sector. A pixel
-    is blank when at most a fifth of the pixels within 1 mm are non-zero (dark speckle has
-    isolated zeros; a margin is zero throughout), and a blank area is margin only where it
-    reaches the frame's border: a black vessel or cyst inside the image is imaged tissue."""
-    im = np.asarray(frame.image)
-    dz, dx = frame.grid.spacing_mm
-    k = (max(int(round(1.0 / dx)) | 1, 3), max(int(round(1.0 / dz)) | 1, 3))
-    if not _blank_on_border(im, k):  # no margin: every blank area lies inside the image
-        return np.ones(im.shape, bool)
-    valid = cv2.blur((im > 0).astype(np.float32), k) > 0.2
-    if valid.all():
-        return valid
-    n, labels = cv2.connectedComponents((~valid).astype(np.uint8), connectivity=4)
-    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    return ~np.isin(labels, border[border > 0])
-
-
-def _blank_on_border(im: np.ndarray, k: tuple[int, int]) -> bool:
-    """Whether a pixel on the frame's border is blank by :func:`_imaged_region`'s test (the
-    box of ``k`` = (width, height) pixels around it at most a fifth non-zero), reading only
-    the strips along the border that those boxes cover."""
-    kx, kz = min(k[0], im.shape[1]), min(k[1], im.shape[0])
-    strips = ((im[:kz], 0, None), (im[-kz:], -1, None), (im[:, :kx], None, 0),
-              (im[:, -kx:], None, -1))
-    for strip, row, col in strips:
-        b = cv2.blur((strip > 0).astype(np.float32), k)
-        edge = b[row] if row is not None else b[:, col]
-        if np.any(edge <= 0.2):
-            return True
-    return False
-
-
-_AROUND = np.stack([np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False)),
-                    np.sin(np.linspace(0, 2 * np.pi, 24, endpoint=False))], -1)
-
-
-def _distance_to_edge(valid: np.ndarray, frame: Frame, start: np.ndarray,
-                      direction: np.ndarray, step_mm: float = 0.2,
-                      max_mm: float = 200.0) -> float:
-    """How far (mm) from ``start`` the imaged region ends along ``direction`` (2,), or along
-    the nearest of several directions (D, 2)."""
-    dirs = np.asarray(direction, float).reshape(-1, 2)
-    s = np.arange(0.0, max_mm, step_mm)
-    pts = start[None, None] + s[None, :, None] * dirs[:, None, :]  # (D, S, 2)
-    idx = np.rint(frame.grid.points_to_index(pts.reshape(-1, 2))).astype(int)
-    h, w = valid.shape
-    inside = (idx[:, 0] >= 0) & (idx[:, 0] < h) & (idx[:, 1] >= 0) & (idx[:, 1] < w)
-    ok = np.zeros(len(idx), bool)
-    ok[inside] = valid[idx[inside, 0], idx[inside, 1]]
-    out = np.flatnonzero(~ok.reshape(len(dirs), len(s)).all(axis=0))
-    return float(s[out[0]]) if out.size else float(max_mm)

@@ -1,0 +1,100 @@
+"""Geometry of the `line` tracker's segments against the frame: whether a segment runs on a
+line, which of its ends is the entry, where the imaged region is (capture margins and sector
+masks are not), and how far a point lies from that region's edge."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from ..backends import NeedleLine
+from ..features import Frame
+
+__all__ = ["on_line", "entry_to_tip", "sample_grid", "imaged_region", "distance_to_edge",
+           "AROUND"]
+
+
+def on_line(seg: NeedleLine, point: np.ndarray, direction: np.ndarray, window_deg: float,
+             window_mm: float) -> bool:
+    """Whether ``seg`` runs within ``window_deg`` of the line (``point``, ``direction``) with
+    its midpoint within ``window_mm`` of it."""
+    cos = abs(float(seg.direction @ direction))
+    n = np.array([-direction[1], direction[0]])
+    mid = 0.5 * (seg.start_mm + seg.end_mm)
+    return cos >= np.cos(np.deg2rad(window_deg)) and abs(float((mid - point) @ n)) <= window_mm
+
+
+def entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float,
+                  valid: np.ndarray) -> NeedleLine:
+    """``seg`` from its entry end to its tip end: the deeper end is the tip of a segment that
+    descends by ``min_angle_deg`` or more; else the entry is the end nearer the edge of the
+    imaged region."""
+    d = seg.direction
+    if abs(d[1]) >= np.sin(np.deg2rad(min_angle_deg)):
+        return seg if d[1] > 0 else seg.reversed()
+    a = distance_to_edge(valid, frame, seg.start_mm, -d)
+    b = distance_to_edge(valid, frame, seg.end_mm, d)
+    return seg if a <= b else seg.reversed()
+
+
+def sample_grid(values: np.ndarray, grid, pts: np.ndarray) -> np.ndarray:
+    """Bilinear samples of a map on ``grid`` at points (N, 2) in mm; 0 outside."""
+    idx = grid.points_to_index(pts)  # (N, 2) as (row, col)
+    out = cv2.remap(values, idx[:, 1].astype(np.float32).reshape(1, -1),
+                    idx[:, 0].astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    return out.ravel()
+
+
+def imaged_region(frame: Frame) -> np.ndarray:
+    """Where the frame holds an image: not black capture margin or outside a sector. A pixel
+    is blank when at most a fifth of the pixels within 1 mm are non-zero (dark speckle has
+    isolated zeros; a margin is zero throughout), and a blank area is margin only where it
+    reaches the frame's border: a black vessel or cyst inside the image is imaged tissue."""
+    im = np.asarray(frame.image)
+    dz, dx = frame.grid.spacing_mm
+    k = (max(int(round(1.0 / dx)) | 1, 3), max(int(round(1.0 / dz)) | 1, 3))
+    if not _blank_on_border(im, k):  # no margin: every blank area lies inside the image
+        return np.ones(im.shape, bool)
+    valid = cv2.blur((im > 0).astype(np.float32), k) > 0.2
+    if valid.all():
+        return valid
+    n, labels = cv2.connectedComponents((~valid).astype(np.uint8), connectivity=4)
+    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    return ~np.isin(labels, border[border > 0])
+
+
+def _blank_on_border(im: np.ndarray, k: tuple[int, int]) -> bool:
+    """Whether a pixel on the frame's border is blank by :func:`imaged_region`'s test (the
+    box of ``k`` = (width, height) pixels around it at most a fifth non-zero), reading only
+    the strips along the border that those boxes cover."""
+    kx, kz = min(k[0], im.shape[1]), min(k[1], im.shape[0])
+    strips = ((im[:kz], 0, None), (im[-kz:], -1, None), (im[:, :kx], None, 0),
+              (im[:, -kx:], None, -1))
+    for strip, row, col in strips:
+        b = cv2.blur((strip > 0).astype(np.float32), k)
+        edge = b[row] if row is not None else b[:, col]
+        if np.any(edge <= 0.2):
+            return True
+    return False
+
+
+AROUND = np.stack([np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False)),
+                    np.sin(np.linspace(0, 2 * np.pi, 24, endpoint=False))], -1)
+
+
+def distance_to_edge(valid: np.ndarray, frame: Frame, start: np.ndarray,
+                      direction: np.ndarray, step_mm: float = 0.2,
+                      max_mm: float = 200.0) -> float:
+    """How far (mm) from ``start`` the imaged region ends along ``direction`` (2,), or along
+    the nearest of several directions (D, 2)."""
+    dirs = np.asarray(direction, float).reshape(-1, 2)
+    s = np.arange(0.0, max_mm, step_mm)
+    pts = start[None, None] + s[None, :, None] * dirs[:, None, :]  # (D, S, 2)
+    idx = np.rint(frame.grid.points_to_index(pts.reshape(-1, 2))).astype(int)
+    h, w = valid.shape
+    inside = (idx[:, 0] >= 0) & (idx[:, 0] < h) & (idx[:, 1] >= 0) & (idx[:, 1] < w)
+    ok = np.zeros(len(idx), bool)
+    ok[inside] = valid[idx[inside, 0], idx[inside, 1]]
+    out = np.flatnonzero(~ok.reshape(len(dirs), len(s)).all(axis=0))
+    return float(s[out[0]]) if out.size else float(max_mm)
