@@ -52,7 +52,6 @@ the needle points across the rays plus the angle's variance times the needle len
 from __future__ import annotations
 
 from collections import deque
-from copy import deepcopy
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -419,7 +418,7 @@ class InplaneTracker(TipFiltering, Tracker):
         axis = estimate_axis(image, grid, p.axis, tip_along_mm=tip_along,
                              **self._search_range())
         theta_measured = axis.theta_deg
-        angle_before = deepcopy(self._angle_filter)
+        angle_before = None if self._angle_filter is None else self._angle_filter.copy()
         if self._angle_filter is not None:
             theta_kf = self._angle_filter.step(axis.theta_deg)  # Algorithm 4, line 16
             axis = axis.rotated(theta_kf, upto_mm=self._tip_along_mm)
