@@ -340,15 +340,16 @@ class LearnedFeatures(FeatureSource):
         """Maps (2, *image.shape) in [0, 1] for an image at ``spacing_mm``; ``level``: the
         whole frame's :func:`frame_statistics` when ``image`` is an ROI of it. A frame too
         large on the model's grid (:meth:`check_frame_size`) is a FrameError: no evidence."""
-        try:
-            self.check_frame_size(np.shape(image), spacing_mm)
-        except ModelError as exc:
-            raise FrameError(str(exc)) from None
         # linear resampling keeps the clipped maps in [0, 1]
         return to_frame_grid(self._model_grid_maps(image, spacing_mm, level), image.shape)
 
     def _model_grid_maps(self, image: np.ndarray, spacing_mm, level=None) -> np.ndarray:
-        """The network's maps (2, *model shape) on the model's grid, in [0, 1]."""
+        """The network's maps (2, *model shape) on the model's grid, in [0, 1]; a FrameError
+        for a frame too large there."""
+        try:
+            self.check_frame_size(np.shape(image), spacing_mm)
+        except ModelError as exc:
+            raise FrameError(str(exc)) from None
         x = to_model_grid(image, spacing_mm, self.spacing_mm)
         if level is None:
             level = frame_statistics(image, self.normalization)
@@ -366,10 +367,6 @@ class LearnedFeatures(FeatureSource):
         im = np.asarray(frame.image)
         if im.ndim != 2:
             return self.likelihood(frame), frame.grid
-        try:
-            self.check_frame_size(im.shape, frame.grid.spacing_mm)
-        except ModelError as exc:
-            raise FrameError(str(exc)) from None
         maps = self._model_grid_maps(im, frame.grid.spacing_mm)
         return (Likelihood(shaft=maps[0], tip=maps[1], source=self.name),
                 model_grid(frame.grid, maps.shape[1:]))
