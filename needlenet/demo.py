@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bench._runner import HEADLINE, LOWER_IS_BETTER, PAPERS, run_suite
+from .bench import HEADLINE, LOWER_IS_BETTER, PAPERS, run_suite
 
 DEMO_SUITES = ("inplane", "axial", "volume", "servo", "external")
 # what each suite measures against: a paper's protocol, or the data set

@@ -23,7 +23,14 @@ from ._probe import MatrixProbe, PlaneProbe, SectorProbe
 from ._progress import Progress
 from ._render import Trajectory, contrast_ratio, render_sequence, tube_indices
 from ._scanner import ImagingParams, Scanner, display_mask, log_compress, speckle_log_mean_db
-from ._scenarios import SCENARIOS, describe, generate, random_scattering_map, scenario_params
+from ._scenarios import (
+    MAX_FRAME_PIXELS,
+    SCENARIOS,
+    describe,
+    generate,
+    random_scattering_map,
+    scenario_params,
+)
 from ._sequence import (
     MODALITIES,
     Sequence,
@@ -61,4 +68,4 @@ __all__ = [
     "needle_radius_mm", "preview_image", "random_scattering_map", "render_sequence",
     "rigid_transform", "rotation_matrix", "save_preview", "save_sequence", "scenario_params",
     "speckle_fwhm", "tube_indices", "validate_sequence",
-]
+           "MAX_FRAME_PIXELS"]

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from needlenet.features._mathiassen import (
+from needlenet.features import (
     MathiassenParams,
     estimate_axis,
     tip_features,

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from needlenet.eval._auc import roc_auc
+from needlenet.eval import roc_auc
 
 __all__ = ["LikelihoodModule", "likelihood_loss", "shaft_auc", "tip_error_mm",
            "peak_subpixel"]

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from needlenet._settings import convert_setting
+from needlenet.settings import convert_setting
 
 from .data import DataConfig, SynthDataModule, target_reference
 from .module import LikelihoodModule

@@ -5,6 +5,8 @@ the machine they ran on."""
 from ._machine import machine_description
 from ._runner import (
     HEADLINE,
+    LOWER_IS_BETTER,
+    PAPERS,
     SUITES,
     BenchInterrupted,
     check_report_dir,
@@ -13,4 +15,5 @@ from ._runner import (
 )
 
 __all__ = ["HEADLINE", "SUITES", "BenchInterrupted", "check_report_dir", "compare",
-           "machine_description", "run_suite"]
+           "machine_description", "run_suite",
+           "LOWER_IS_BETTER", "PAPERS"]

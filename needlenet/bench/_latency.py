@@ -15,7 +15,7 @@ import numpy as np
 
 import synth
 
-from ..trackers._registry import make_tracker
+from ..trackers import make_tracker
 from ._trackers import SEED0, _feature_kinds, _tier
 
 INPLANE_ALL = ("line", "df", "om", "om+f", "kf", "kf+f", "pf", "pf+f", "kfv", "kfv+f", "pfv",

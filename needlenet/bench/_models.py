@@ -29,7 +29,7 @@ import numpy as np
 
 import synth
 
-from ..eval._auc import roc_auc
+from ..eval import roc_auc
 from ..features import (
     FeatureSource,
     Frame,

@@ -20,9 +20,7 @@ import synth
 
 from ..eval import evaluate
 from ..features import ModelError
-from ..trackers._axial import AxialParams
-from ..trackers._inplane_line import LineTrackerParams
-from ..trackers._registry import make_tracker
+from ..trackers import AxialParams, LineTrackerParams, make_tracker
 
 SEED0 = 30_000_000
 

@@ -88,7 +88,7 @@ def _name_max(directory: Path) -> int:
 def check_plus_output(path: str, overwrite: bool, what: str, inputs: tuple = ()) -> Path:
     """A PLUS output (``.mha``, ``.seq.mha``, or ``.mhd`` with its ``.zraw``): checked like
     every output, the data file next to an ``.mhd`` included."""
-    from ..io._metaimage import plus_outputs
+    from ..io import plus_outputs
 
     suffix = Path(path).suffix.lower()
     if suffix not in (".mha", ".mhd"):

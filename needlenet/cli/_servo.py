@@ -113,13 +113,13 @@ def run(args) -> int:
                   f"of probe travel after the {stop['fault']} fault" if "fault" in stop else ""),
               file=sys.stderr)
     if json_path is not None:
-        from ..bench._machine import machine_description
+        from ..bench import machine_description
 
         doc = {"scenario": args.scenario, "rows": rows, "machine": machine_description(),
                "quick": bool(args.quick), "events": [t.events for t in traces],
                "note": "latencies: wall time per cycle (time.perf_counter), with and without "
                        "the simulated scanner's imaging; other jobs may share the CPU"}
-        from ..io._atomic import atomic_write
+        from ..io import atomic_write
 
         text = json.dumps(doc, indent=1, default=_json_default)
         atomic_write({json_path: lambda fh: fh.write(text.encode())}, overwrite=True)

@@ -84,8 +84,7 @@ def _check_readable(params) -> None:
     rate are in their ranges, so that what synth writes, track reads."""
     import dataclasses
 
-    from ..io import RecordingError
-    from ..io._limits import check_fps, check_meta_numbers
+    from ..io import RecordingError, check_fps, check_meta_numbers
 
     try:
         check_meta_numbers({"params": {f.name: getattr(params, f.name)
@@ -101,10 +100,9 @@ def _check_size(params) -> None:
     """A volume scenario's ``output_size`` makes frames of at most as many voxels as a 2D
     scenario's frame may have pixels (``synth._scenarios.MAX_FRAME_PIXELS``, which the 2D
     scenarios check themselves), and all the frames asked for fit this machine's memory."""
-    from synth._scenarios import MAX_FRAME_PIXELS
+    from synth import MAX_FRAME_PIXELS
 
-    from ..io import RecordingError
-    from ..io._limits import check_allocation
+    from ..io import RecordingError, check_allocation
 
     n = getattr(params, "output_size", None)
     if isinstance(n, int) and not 1 <= n ** 3 <= MAX_FRAME_PIXELS:
@@ -140,13 +138,13 @@ def _field_default(f):
 
 def _overrides(args, cls) -> dict:
     """The scenario parameters the options and ``--param`` settings change; a setting of a
-    field is read as the field's type (:func:`needlenet._settings.convert_setting`: a float
+    field is read as the field's type (:func:`needlenet.settings.convert_setting`: a float
     field takes a finite number, an integer a whole one), an unknown name is left for the
     scenario to refuse by name."""
     import dataclasses
     import math
 
-    from .._settings import convert_setting, parse_value
+    from ..settings import convert_setting, parse_value
 
     fields = {f.name: f for f in dataclasses.fields(cls)}
     overrides = {}

@@ -117,7 +117,7 @@ def _input_files(path: str) -> tuple[Path, ...]:
     """The recording and the files it reads beside it: an .mhd's or .nhdr's data file (the
     one its header names, and those named like it), the sidecar JSON of a video or a folder
     of frames, and the frames of a folder."""
-    from ..io._frames import VIDEO_SUFFIXES, sidecar_path
+    from ..io import VIDEO_SUFFIXES, sidecar_path
 
     p = Path(path)
     out = [p]
@@ -157,7 +157,7 @@ def _named_data_files(header: Path) -> list[Path]:
 
 def _check_method(args) -> None:
     """Fill in the default method and features of ``args.tracker`` and check the method."""
-    from ..trackers._registry import DEFAULT_FEATURES, DEFAULT_METHODS, tracker_methods
+    from ..trackers import DEFAULT_FEATURES, DEFAULT_METHODS, tracker_methods
 
     args.method = args.method or DEFAULT_METHODS[args.tracker]
     args.features = args.features or DEFAULT_FEATURES
@@ -168,7 +168,7 @@ def _check_method(args) -> None:
 
 def _track_params(args):
     """``--param`` settings as the tracker's parameter class (None without any)."""
-    from ..trackers._registry import tracker_params
+    from ..trackers import tracker_params
 
     if not args.param:
         return None
@@ -184,8 +184,7 @@ def _load(args):
 
     import synth
 
-    from ..io import RecordingError, load_recording
-    from ..io._recording import parse_crop, parse_spacing
+    from ..io import RecordingError, load_recording, parse_crop, parse_spacing
 
     try:
         spacing = None if args.spacing is None else parse_spacing(args.spacing)
@@ -206,7 +205,7 @@ def _load(args):
 
 
 def _make_tracker(args, params):
-    from ..trackers._registry import make_tracker
+    from ..trackers import make_tracker
 
     kw = {"seed": args.seed}
     if params is not None:
@@ -257,8 +256,8 @@ def _run_tracker(args, tracker, seq) -> list:
 
     from synth import Progress
 
-    from ..io._limits import MAX_GAP_S
-    from ..trackers._base import frames_from_sequence
+    from ..io import MAX_GAP_S
+    from ..trackers import frames_from_sequence
 
     streamer = _open_stream(args)
     bar = Progress(seq.n_frames, f"track {args.tracker}/{args.method}", not args.quiet)
@@ -304,7 +303,7 @@ def _report(args, seq, estimates, out_json, overlay, out_plus) -> None:
     print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}, indent=1,
                      allow_nan=False))
     if out_json is not None:
-        from ..io._atomic import atomic_write
+        from ..io import atomic_write
 
         text = json.dumps(finite_json({"frames": [e.to_json() for e in estimates],
                                        "summary": summary}), indent=1, allow_nan=False)

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._auc import roc_auc
 from ._inplane_metrics import inplane_errors, inplane_metrics, insertion_angle_deg
 
 __all__ = ["evaluate", "latency_summary", "inplane_metrics", "inplane_errors",
-           "insertion_angle_deg"]
+           "insertion_angle_deg",
+           "roc_auc"]
 
 
 def latency_summary(estimates) -> dict:

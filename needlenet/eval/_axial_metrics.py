@@ -31,8 +31,7 @@ import numpy as np
 from synth import invert_rigid
 
 from ..backends import shape_error, tip_error
-from ..trackers._base import NeedleEstimate, Status
-from ..trackers._details import AxialDetails
+from ..trackers import AxialDetails, NeedleEstimate, Status
 
 __all__ = ["AxialMetrics", "axial_errors", "axial_metrics", "eq8_shape_error"]
 

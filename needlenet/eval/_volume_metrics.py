@@ -27,12 +27,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..backends import direction_to_angles
-from ..trackers._details import VolumeDetails
+from ..trackers import VolumeDetails
 
 if TYPE_CHECKING:  # pragma: no cover
     from synth import Sequence
 
-    from ..trackers._base import NeedleEstimate
+    from ..trackers import NeedleEstimate
 
 __all__ = ["FAILURE_MM", "VolumeEvaluation", "axis_accuracy", "distance_to_line",
            "evaluate_volume"]

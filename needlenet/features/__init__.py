@@ -2,16 +2,35 @@
 
 from ._base import FeatureSource, Frame, FrameError, IntensityFeatures, Likelihood, check_frame
 from ._frangi import FrangiFeatures, FrangiParams
+from ._hough import DFParams, ding_fenster
 from ._learned import SHIPPED_MODELS, LearnedFeatures, ModelError, shipped_model_path, wall_offsets
 from ._line_contrast import line_contrast
+from ._mathiassen import (
+    PAPER_PX_MM,
+    AxisEstimate,
+    MathiassenParams,
+    TipFeatures,
+    TipWeights,
+    axis_vectors,
+    estimate_axis,
+    load_tip_weights,
+    roi_anchor_mm,
+    tip_features,
+    tip_likelihood,
+    tip_map_along_axis,
+    weights_path,
+)
 from ._resample import NORMALIZATIONS, frame_statistics, image_statistics, normalize, to_model_grid
 from ._variance import VarianceFeatures
 
-__all__ = ["FeatureSource", "Frame", "FrameError", "IntensityFeatures", "Likelihood",
-           "check_frame", "learned_features", "LearnedFeatures", "ModelError", "line_contrast",
-           "VarianceFeatures", "FrangiFeatures", "FrangiParams", "SHIPPED_MODELS",
-           "shipped_model_path", "wall_offsets", "NORMALIZATIONS", "frame_statistics",
-           "image_statistics", "normalize", "to_model_grid"]
+__all__ = ["axis_vectors", "AxisEstimate", "check_frame", "DFParams", "ding_fenster",
+           "estimate_axis", "FeatureSource", "Frame", "frame_statistics", "FrameError",
+           "FrangiFeatures", "FrangiParams", "image_statistics", "IntensityFeatures",
+           "learned_features", "LearnedFeatures", "Likelihood", "line_contrast",
+           "load_tip_weights", "MathiassenParams", "ModelError", "NORMALIZATIONS", "normalize",
+           "PAPER_PX_MM", "roi_anchor_mm", "shipped_model_path", "SHIPPED_MODELS", "tip_features",
+           "tip_likelihood", "tip_map_along_axis", "TipFeatures", "TipWeights", "to_model_grid",
+           "VarianceFeatures", "wall_offsets", "weights_path"]
 
 
 # onnxruntime threads per modality: the in-plane network on one 500 x 384 frame (252 x 192 on

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..trackers._base import NeedleEstimate, Status
+from ..trackers import NeedleEstimate, Status
 from ._faults import Fault
 
 __all__ = ["ChatelainConfig", "chatelain_features", "control_velocity", "interaction_matrix",

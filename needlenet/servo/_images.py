@@ -239,7 +239,7 @@ class CrossSectionDetector:
 
     def __init__(self, source, radius_mm: float = 0.635, detect_score: float | None = None,
                  min_peak: float | None = None, echo_threshold: float | None = None):
-        from ..trackers._axial import AxialParams
+        from ..trackers import AxialParams
 
         if not np.isfinite(radius_mm) or radius_mm <= 0:
             raise ValueError(f"radius_mm must be positive, got {radius_mm}")
@@ -328,7 +328,7 @@ class CrossSectionDetector:
         return (float(S[idx]) - med) / mad, float(S[idx]), idx, F, S
 
     def detect(self, image: np.ndarray, grid) -> tuple[bool, np.ndarray | None, float]:
-        from ..trackers._cross_section import below_top_edge, subpixel_peak
+        from ..trackers import below_top_edge, subpixel_peak
 
         self.last = {"score": 0.0, "level": float("nan"), "peak_rc": None,
                      "shaft_seen": False}

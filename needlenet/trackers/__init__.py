@@ -3,6 +3,7 @@
 
 from ._axial import AxialParams, AxialTracker
 from ._base import NeedleEstimate, Status, Tracker, frames_from_sequence
+from ._cross_section import below_top_edge, subpixel_peak
 from ._details import (
     AxialDetails,
     AxialModel,
@@ -12,11 +13,21 @@ from ._details import (
     VolumeDetails,
 )
 from ._inplane import InplaneParams, InplaneTracker
-from ._registry import TRACKERS, make_tracker, tracker_class, tracker_params
+from ._inplane_line import LineTrackerParams
+from ._registry import (
+    DEFAULT_FEATURES,
+    DEFAULT_METHODS,
+    TRACKERS,
+    make_tracker,
+    tracker_class,
+    tracker_methods,
+    tracker_params,
+)
 from .volume import VolumeTracker, VolumeTrackerParams
 
-__all__ = ["AxialDetails", "AxialModel", "AxialParams", "AxialTracker", "EstimateDetails",
-           "InplaneDetails", "InplaneParams", "InplaneTracker", "LineDetails", "NeedleEstimate",
-           "Status", "TRACKERS", "Tracker", "VolumeDetails", "VolumeTracker",
-           "VolumeTrackerParams", "frames_from_sequence", "make_tracker", "tracker_class",
-           "tracker_params"]
+__all__ = ["AxialDetails", "AxialModel", "AxialParams", "AxialTracker", "below_top_edge",
+           "DEFAULT_FEATURES", "DEFAULT_METHODS", "EstimateDetails", "frames_from_sequence",
+           "InplaneDetails", "InplaneParams", "InplaneTracker", "LineDetails", "LineTrackerParams",
+           "make_tracker", "NeedleEstimate", "Status", "subpixel_peak", "Tracker", "tracker_class",
+           "tracker_methods", "tracker_params", "TRACKERS", "VolumeDetails", "VolumeTracker",
+           "VolumeTrackerParams"]

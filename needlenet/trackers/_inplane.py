@@ -61,14 +61,16 @@ from ..backends import (
     MathiassenAngleParams,
     MathiassenTipParams,
 )
-from ..features import FeatureSource, Frame
-from ..features._hough import DFParams, ding_fenster
-from ..features._mathiassen import (
+from ..features import (
     PAPER_PX_MM,
     AxisEstimate,
+    DFParams,
+    FeatureSource,
+    Frame,
     MathiassenParams,
     TipWeights,
     axis_vectors,
+    ding_fenster,
     estimate_axis,
     load_tip_weights,
     roi_anchor_mm,

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..features._mathiassen import TipFeatures
+from ..features import TipFeatures
 
 __all__ = ["echo_sections", "classical_echo_seen", "learned_level_reached"]
 

@@ -21,8 +21,10 @@ import cv2
 import numpy as np
 
 from ..backends import NeedleLine
-from ..features import Frame
-from ..features._mathiassen import TipFeatures  # Mathiassen's echo test, shared
+from ..features import (
+    Frame,
+    TipFeatures,  # Mathiassen's echo test, shared
+)
 from ._inplane_evidence import classical_echo_seen
 
 __all__ = ["EchoTestParams", "echo_along"]

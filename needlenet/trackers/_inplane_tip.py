@@ -18,8 +18,7 @@ from ..backends import (
     MathiassenTipParticleFilter,
     tip_candidates,
 )
-from ..features import Frame
-from ..features._mathiassen import PAPER_PX_MM
+from ..features import PAPER_PX_MM, Frame
 
 __all__ = ["TipStep", "TipFiltering", "mm_to_px"]
 

@@ -6,7 +6,7 @@ import dataclasses
 import difflib
 import importlib
 
-from .._settings import convert_setting
+from ..settings import convert_setting
 
 __all__ = ["TRACKERS", "METHOD_TRACKERS", "DEFAULT_METHODS", "DEFAULT_FEATURES",
            "tracker_class", "tracker_methods", "make_tracker", "tracker_params", "FEATURE_KINDS"]

@@ -117,7 +117,7 @@ def test_bad_tracker_params_are_named(tmp_path, capsys, setting, msg):
 
 
 def test_settings_are_read_as_their_fields_types_strictly():
-    from needlenet._settings import convert_setting, parse_value
+    from needlenet.settings import convert_setting, parse_value
     from needlenet.trackers import tracker_params
 
     # accepted: the readings of each type, none where the field may hold None
