@@ -23,7 +23,7 @@ from scipy import ndimage
 from synth import Grid
 
 __all__ = ["LineSearchParams", "NeedleLine", "WorkingMap", "working_map", "hough_peaks",
-           "refine_line", "line_segment", "find_needle_line"]
+           "refine_line", "line_segment", "extend_end", "find_needle_line"]
 
 
 @dataclass(frozen=True)
@@ -251,6 +251,42 @@ def line_segment(wm: WorkingMap, c: np.ndarray, d: np.ndarray, level: float,
     support = float(prof[i0:i1 + 1].mean())
     return NeedleLine(True, "", c + t0 * d, c + t1 * d, d.copy(), support,
                       float(sums[best - 1]) * step, prof[i0:i1 + 1])
+
+
+def extend_end(wm: WorkingMap, seg: NeedleLine, level: float,
+               params: LineSearchParams) -> NeedleLine:
+    """``seg`` with its end (``end_mm``, the tip end once oriented) moved on along its line
+    while the map's profile stays at or above ``level``, gaps up to ``gap_mm`` closed: weaker
+    evidence counts where it continues a segment found on strong evidence (Canny's
+    hysteresis). The new end sits where the profile crosses ``level``; ``support`` and
+    ``score`` stay those of ``seg``."""
+    h, w_ = wm.values.shape
+    lo = np.array([wm.x0, wm.z0])
+    hi = lo + wm.step * np.array([w_ - 1, h - 1])
+    d = seg.direction
+    span = _clip_to_box(seg.end_mm, d, lo, hi)
+    if span is None or span[1] <= wm.step:
+        return seg
+    step = wm.step
+    t = np.arange(0.0, span[1] + 1e-9, step)
+    n = np.array([-d[1], d[0]])
+    k = max(int(round(params.profile_half_width_mm / step)), 0)
+    offs = np.arange(-k, k + 1) * step
+    pts = seg.end_mm[None, None] + t[None, :, None] * d[None, None] \
+        + offs[:, None, None] * n[None, None]
+    on = wm.sample(pts).max(axis=0) >= level
+    on[0] = True  # the segment's own end
+    g = max(int(round(params.gap_mm / step)), 1)
+    closed = ndimage.binary_closing(np.pad(on, g), structure=np.ones(g + 1, bool))[g:-g]
+    off = np.flatnonzero(~closed)
+    last = (off[0] - 1) if off.size else len(t) - 1
+    last = int(np.flatnonzero(on[:last + 1])[-1])  # the run's last sample at the level
+    if last == 0:
+        return seg
+    prof = wm.sample(pts).max(axis=0)
+    t1 = _crossing(t, prof, last, +1, level)
+    return NeedleLine(True, "", seg.start_mm.copy(), seg.end_mm + t1 * d, d.copy(),
+                      seg.support, seg.score, seg.profile)
 
 
 def _crossing(t: np.ndarray, prof: np.ndarray, i: int, side: int, level: float) -> float:

@@ -46,6 +46,7 @@ from ..backends import (
     NeedleLine,
     WorkingMap,
     chi2_gate,
+    extend_end,
     find_needle_line,
     predict,
     update,
@@ -76,6 +77,10 @@ class LineTrackerParams:
     ``min_length_mm``: the shortest needle segment taken for a needle (5 mm: long enough to fix
     a direction, shorter than any needle a user would track). ``learned_level``: a learned
     shaft probability at or above this marks the needle (0.5: the map's decision level).
+    ``learned_extend_level``: along a needle's line, a learned shaft probability at or above
+    this continues its segment (Canny's hysteresis; half the decision level: the map of a
+    needle less bright or steep than those it was trained on hovers around 0.5 along it,
+    tissue stays below 0.1).
     ``classical_level``: the same for the classical line-contrast map, in speckle standard
     deviations above the tissue beside the echo (2 SD). ``contrast_window_mm``: the side of
     that map's tissue boxes. ``track_window_deg``/``track_window_mm``: while tracking,
@@ -110,6 +115,7 @@ class LineTrackerParams:
     echo: EchoTestParams = field(default_factory=EchoTestParams)
     min_length_mm: float = 5.0
     learned_level: float = 0.5
+    learned_extend_level: float = 0.25
     classical_level: float = 2.0
     contrast_window_mm: float = 2.0
     track_window_deg: float = 4.0
@@ -132,6 +138,9 @@ class LineTrackerParams:
     mask_edge_mm: float = 1.5
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.learned_extend_level <= self.learned_level:
+            raise ValueError(f"learned_extend_level must lie in (0, learned_level], got "
+                             f"{self.learned_extend_level}")
         for name in ("min_length_mm", "learned_level", "classical_level", "contrast_window_mm",
                      "track_window_deg", "track_window_mm", "accel_std_mm_s2",
                      "measurement_std_mm", "initial_speed_std_mm_s"):
@@ -361,7 +370,8 @@ class LineTracker(Tracker):
         if new_line and self._dir is not None:
             self._forget()  # another line than the one tracked: start anew
         seg = self._orient(seg, frame, inner)
-        tip_mm, used_tip_map = self._tip(seg, lik.tip, map_grid)
+        tip_mm, used_tip_map = self._tip(seg, lik.tip, map_grid,
+                                         self._reach_mm(seg, wm, frame, inner))
         self._misses = 0
         measured = tip_mm.copy()
         accepted, restarted = self._filter(tip_mm)
@@ -458,9 +468,26 @@ class LineTracker(Tracker):
             return seg if float(seg.direction @ self._dir) >= 0 else seg.reversed()
         return entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, valid)
 
-    def _tip(self, seg: NeedleLine, tip_map, grid) -> tuple[np.ndarray, bool]:
+    def _reach_mm(self, seg: NeedleLine, wm: WorkingMap, frame: Frame,
+                  inner: np.ndarray) -> float:
+        """How far (mm) a learned needle's segment continues past its end on weaker evidence
+        (down to ``learned_extend_level``, Canny's hysteresis); 0 with classical features and
+        where the continuation reaches the edge of the view (the tip may lie beyond it)."""
+        p = self.params
+        if self.features.kind != "learned" or p.learned_extend_level >= p.learned_level:
+            return 0.0
+        longer = extend_end(wm, seg, p.learned_extend_level, p.search)
+        if longer is seg or distance_to_edge(inner, frame, longer.end_mm, longer.direction,
+                                             max_mm=p.edge_margin_mm + 1.0) <= p.edge_margin_mm:
+            return 0.0
+        return float(np.linalg.norm(longer.end_mm - seg.end_mm))
+
+    def _tip(self, seg: NeedleLine, tip_map, grid, reach_mm: float = 0.0
+             ) -> tuple[np.ndarray, bool]:
         """The tip (x, z) on the centre line: the segment's far end, moved to the tip map's
-        maximum within ``tip_window_mm`` of it when the map is confident there."""
+        maximum when the map is confident there, searched from ``tip_window_mm`` behind the
+        end to its window ahead of the end's weaker continuation (``reach_mm`` long): weaker
+        shaft evidence moves the tip only where the tip map confirms it."""
         p = self.params
         normal = np.array([-seg.direction[1], seg.direction[0]])
         if normal[1] < 0:
@@ -470,7 +497,7 @@ class LineTracker(Tracker):
         if tip_map is not None:
             back, ahead = p.tip_window_mm
             step = p.search.work_spacing_mm / 2
-            s = np.arange(-back, ahead + 1e-9, step)
+            s = np.arange(-back, reach_mm + ahead + 1e-9, step)
             pts = end[None] + s[:, None] * seg.direction[None]
             vals = sample_grid(np.asarray(tip_map, np.float32), grid, pts)
             k = int(np.argmax(vals))

@@ -8,6 +8,7 @@ from skimage.transform import hough_line, hough_line_peaks
 from needlenet.backends._line_search import (
     LineSearchParams,
     WorkingMap,
+    extend_end,
     find_needle_line,
     hough_peaks,
     line_segment,
@@ -81,6 +82,26 @@ def test_segment_ends_where_the_evidence_ends():
     assert np.linalg.norm(ends[0] - [5.0, 6.0]) < 2 * step
     assert np.linalg.norm(ends[1] - [30.0, 21.0]) < 2 * step
     assert seg.support == pytest.approx(0.9, abs=0.1)
+
+
+@pytest.mark.parametrize("dip_mm,reach_mm", [(0.0, 20.0), (1.4, 20.0), (3.0, 12.0)])
+def test_a_segment_continues_on_weaker_evidence_until_a_gap_wider_than_gap_mm(dip_mm, reach_mm):
+    # strong 0.9 from x = 2 to 10 mm, weak 0.35 on to 20 mm, with a dip to 0.1 at x = 12 mm;
+    # a dip within gap_mm (2 mm) is bridged, a wider one ends the continuation
+    step = 0.2
+    m = _draw_segment((60, 150), (2.0, 5.0), (10.0, 5.0), step, value=0.9, width_px=3)
+    m = np.maximum(m, _draw_segment(m.shape, (10.0, 5.0), (20.0, 5.0), step, 0.35, 3))
+    if dip_mm:
+        m[:, int(round(12.0 / step)):int(round((12.0 + dip_mm) / step))] = 0.1
+    wm = WorkingMap(m, 0.0, 0.0, step)
+    p = LineSearchParams()
+    seg = line_segment(wm, np.array([2.0, 5.0]), np.array([1.0, 0.0]), 0.5, p)
+    assert seg.end_mm[0] == pytest.approx(10.0, abs=2 * step)
+    longer = extend_end(wm, seg, 0.25, p)
+    assert longer.end_mm[0] == pytest.approx(reach_mm, abs=2 * step)
+    assert np.allclose(longer.start_mm, seg.start_mm)
+    assert (longer.support, longer.score) == (seg.support, seg.score)
+    assert extend_end(wm, seg, 0.4, p).end_mm[0] == pytest.approx(10.0, abs=2 * step)
 
 
 @pytest.mark.parametrize("a,b", [((2.0, 0.0), (30.0, 25.0)), ((38.0, 0.0), (10.0, 4.0)),
