@@ -315,6 +315,11 @@ class LineTracker(Tracker):
 
         def check(seg: NeedleLine) -> str:
             a, b, _ = ends(seg)
+            if abs(seg.direction[1]) < sin_min and all(
+                    straight_mm(q) <= p.edge_margin_mm
+                    for q in (seg.start_mm, 0.5 * (seg.start_mm + seg.end_mm), seg.end_mm)):
+                return (f"the {seg.length_mm:.0f} mm line lies flat along the edge of the view "
+                        "(the probe face's reverberation): no needle")
             if a <= p.edge_margin_mm and b <= p.edge_margin_mm:
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line runs across the "
                         "image from edge to edge")

@@ -223,6 +223,8 @@ def _line_map(h, w, p0, p1, width=1):
     ((0, 150), (90, 60), True, None),  # enters through the top: a needle, its tip inside
     ((110, 150), (199, 60), False, "deeper end"),  # its tip would lie at the bottom edge
     ((60, 150), (150, 60), False, "floats in the tissue"),  # neither end at an edge
+    ((4, 0), (4, 120), False, "flat along the edge"),  # under the probe face: its reverberation
+    ((4, 0), (16, 120), True, None),  # 6 degrees from the same entry: a shallow needle
 ])
 def test_where_a_line_ends_decides_whether_it_is_a_needle(p0, p1, tracked, reason):
     """A needle comes in through the edge of the view and its tip (the deeper end) lies in
