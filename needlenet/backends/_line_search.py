@@ -222,26 +222,18 @@ def line_segment(wm: WorkingMap, c: np.ndarray, d: np.ndarray, level: float,
     across ``profile_half_width_mm``) thresholded at ``level``, gaps up to ``gap_mm`` closed,
     and the run with the largest evidence sum. Its ends sit where the profile crosses
     ``level`` (linear interpolation)."""
-    h, w_ = wm.values.shape
-    lo = np.array([wm.x0, wm.z0])
-    hi = lo + wm.step * np.array([w_ - 1, h - 1])
-    span = _clip_to_box(c, d, lo, hi)
+    span = _span(wm, c, d)
     if span is None:
         return NeedleLine(False, "the line misses the image")
     step = wm.step
     t = np.arange(span[0], span[1] + 1e-9, step)
     if len(t) < 2:
         return NeedleLine(False, "the line crosses the image in less than two samples")
-    n = np.array([-d[1], d[0]])
-    k = max(int(round(params.profile_half_width_mm / step)), 0)
-    offs = np.arange(-k, k + 1) * step
-    pts = c[None, None] + t[None, :, None] * d[None, None] + offs[:, None, None] * n[None, None]
-    prof = wm.sample(pts).max(axis=0)
+    prof = _profile(wm, c, d, t, params)
     on = prof >= level
     if not on.any():
         return NeedleLine(False, f"no evidence above {level:g} along the line", profile=prof)
-    g = max(int(round(params.gap_mm / step)), 1)
-    closed = ndimage.binary_closing(np.pad(on, g), structure=np.ones(g + 1, bool))[g:-g]
+    closed = _bridged(on, params, step)
     labels, n_runs = ndimage.label(closed)
     sums = ndimage.sum_labels(prof, labels, np.arange(1, n_runs + 1))
     best = int(np.argmax(sums)) + 1
@@ -260,33 +252,45 @@ def extend_end(wm: WorkingMap, seg: NeedleLine, level: float,
     evidence counts where it continues a segment found on strong evidence (Canny's
     hysteresis). The new end sits where the profile crosses ``level``; ``support`` and
     ``score`` stay those of ``seg``."""
-    h, w_ = wm.values.shape
-    lo = np.array([wm.x0, wm.z0])
-    hi = lo + wm.step * np.array([w_ - 1, h - 1])
     d = seg.direction
-    span = _clip_to_box(seg.end_mm, d, lo, hi)
+    span = _span(wm, seg.end_mm, d)
     if span is None or span[1] <= wm.step:
         return seg
-    step = wm.step
-    t = np.arange(0.0, span[1] + 1e-9, step)
-    n = np.array([-d[1], d[0]])
-    k = max(int(round(params.profile_half_width_mm / step)), 0)
-    offs = np.arange(-k, k + 1) * step
-    pts = seg.end_mm[None, None] + t[None, :, None] * d[None, None] \
-        + offs[:, None, None] * n[None, None]
-    on = wm.sample(pts).max(axis=0) >= level
+    t = np.arange(0.0, span[1] + 1e-9, wm.step)
+    prof = _profile(wm, seg.end_mm, d, t, params)
+    on = prof >= level
     on[0] = True  # the segment's own end
-    g = max(int(round(params.gap_mm / step)), 1)
-    closed = ndimage.binary_closing(np.pad(on, g), structure=np.ones(g + 1, bool))[g:-g]
-    off = np.flatnonzero(~closed)
+    off = np.flatnonzero(~_bridged(on, params, wm.step))
     last = (off[0] - 1) if off.size else len(t) - 1
     last = int(np.flatnonzero(on[:last + 1])[-1])  # the run's last sample at the level
     if last == 0:
         return seg
-    prof = wm.sample(pts).max(axis=0)
     t1 = _crossing(t, prof, last, +1, level)
     return NeedleLine(True, "", seg.start_mm.copy(), seg.end_mm + t1 * d, d.copy(),
                       seg.support, seg.score, seg.profile)
+
+
+def _span(wm: WorkingMap, c: np.ndarray, d: np.ndarray):
+    """Parameters (t0, t1) of the line c + t d inside the map, or None."""
+    h, w_ = wm.values.shape
+    lo = np.array([wm.x0, wm.z0])
+    return _clip_to_box(c, d, lo, lo + wm.step * np.array([w_ - 1, h - 1]))
+
+
+def _profile(wm: WorkingMap, c: np.ndarray, d: np.ndarray, t: np.ndarray,
+             params: LineSearchParams) -> np.ndarray:
+    """The map along c + t d, the maximum across ``profile_half_width_mm``."""
+    n = np.array([-d[1], d[0]])
+    k = max(int(round(params.profile_half_width_mm / wm.step)), 0)
+    offs = np.arange(-k, k + 1) * wm.step
+    pts = c[None, None] + t[None, :, None] * d[None, None] + offs[:, None, None] * n[None, None]
+    return wm.sample(pts).max(axis=0)
+
+
+def _bridged(on: np.ndarray, params: LineSearchParams, step: float) -> np.ndarray:
+    """``on`` (samples ``step`` mm apart) with gaps up to ``gap_mm`` closed."""
+    g = max(int(round(params.gap_mm / step)), 1)
+    return ndimage.binary_closing(np.pad(on, g), structure=np.ones(g + 1, bool))[g:-g]
 
 
 def _crossing(t: np.ndarray, prof: np.ndarray, i: int, side: int, level: float) -> float:

@@ -77,10 +77,11 @@ class LineTrackerParams:
     ``min_length_mm``: the shortest needle segment taken for a needle (5 mm: long enough to fix
     a direction, shorter than any needle a user would track). ``learned_level``: a learned
     shaft probability at or above this marks the needle (0.5: the map's decision level).
-    ``learned_extend_level``: along a needle's line, a learned shaft probability at or above
-    this continues its segment (Canny's hysteresis; half the decision level: the map of a
-    needle less bright or steep than those it was trained on hovers around 0.5 along it,
-    tissue stays below 0.1).
+    ``learned_extend_level``: past a needle's segment, the tip is also looked for as far as
+    the learned shaft probability stays at or above this along its line (Canny's hysteresis;
+    half the decision level: the map of a needle shallower or fainter than those it was
+    trained on hovers around 0.5 along it, tissue stays below 0.1); the tip moves there only
+    where the tip map reaches ``tip_map_min``. Equal to ``learned_level``: off.
     ``classical_level``: the same for the classical line-contrast map, in speckle standard
     deviations above the tissue beside the echo (2 SD). ``contrast_window_mm``: the side of
     that map's tissue boxes. ``track_window_deg``/``track_window_mm``: while tracking,
