@@ -258,13 +258,17 @@ def extend_end(wm: WorkingMap, seg: NeedleLine, level: float,
         return seg
     t = np.arange(0.0, span[1] + 1e-9, wm.step)
     prof = _profile(wm, seg.end_mm, d, t, params)
-    on = prof >= level
-    on[0] = True  # the segment's own end
-    off = np.flatnonzero(~_bridged(on, params, wm.step))
-    last = (off[0] - 1) if off.size else len(t) - 1
-    last = int(np.flatnonzero(on[:last + 1])[-1])  # the run's last sample at the level
-    if last == 0:
+    on = np.flatnonzero(prof >= level)
+    on = on[on > 0]
+    g = max(int(round(params.gap_mm / wm.step)), 1)
+    # samples at the level, from the segment's own end (sample 0) on, up to the first gap
+    # longer than gap_mm
+    runs = np.diff(np.concatenate([[0], on])) - 1
+    wide = np.flatnonzero(runs > g)
+    on = on[:wide[0]] if wide.size else on
+    if on.size == 0:
         return seg
+    last = int(on[-1])
     t1 = _crossing(t, prof, last, +1, level)
     return NeedleLine(True, "", seg.start_mm.copy(), seg.end_mm + t1 * d, d.copy(),
                       seg.support, seg.score, seg.profile)
