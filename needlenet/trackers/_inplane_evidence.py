@@ -32,7 +32,7 @@ import numpy as np
 
 from ..features import TipFeatures
 
-__all__ = ["echo_sections", "classical_echo_seen", "learned_level_reached"]
+__all__ = ["echo_sections", "echo_shown", "classical_echo_seen", "learned_level_reached"]
 
 
 def _section_means(values: np.ndarray, n: int) -> np.ndarray:
@@ -67,7 +67,13 @@ def classical_echo_seen(feats: TipFeatures, x_from_mm: float, x_to_mm: float,
     """Whether the echo shows along [x_from, x_to]: at least ``coverage`` of its sections at
     ``z_min`` noise SDs, over the whole range and over its first half (the entry's); and the
     share of all sections that show it (0 when there is none)."""
-    z = echo_sections(feats, x_from_mm, x_to_mm, section_samples)
+    return echo_shown(echo_sections(feats, x_from_mm, x_to_mm, section_samples), z_min,
+                      coverage)
+
+
+def echo_shown(z: np.ndarray, z_min: float, coverage: float) -> tuple[bool, float]:
+    """Whether sections of z ``z`` show the echo (at least ``coverage`` of them at ``z_min``,
+    over all and over the first half), and the share that do (0 when there are none)."""
     if not z.size:
         return False, 0.0
     shows = z >= z_min

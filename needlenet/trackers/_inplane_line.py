@@ -7,7 +7,8 @@ or, while a needle is tracked, within a window around its last line. The line is
 needle only when its supported segment is at least ``min_length_mm`` long with mean evidence at
 or above the level that marks a needle (probability 0.5 for a learned map; for the classical
 map ``classical_level`` local standard deviations above the surrounding tissue). The tip is the
-segment's end away from the entry, refined by the tip map where the source has one, and a
+segment's end away from the entry, refined by the tip map where the source has one (with
+classical features: moved on to where the echo along the line ends), and a
 constant-velocity Kalman filter on the tip's (x, z) smooths it between frames. A segment that
 runs across the imaged region from edge to edge shows no tip (a bright tissue interface, or a
 needle whose tip has left the view, or the edge of a capture margin or sector mask) and is not
@@ -15,7 +16,8 @@ taken for one; nor is a segment whose deeper end, where a needle's tip would be,
 edge (the tip is out of view). A needle comes in through the skin or the side of the view
 and goes in along its axis, so a segment floating in the tissue (its entry end away from the
 edge of the view) is never taken for a new needle, and once a needle has been tracked it is
-taken only on that needle's axis (the same needle, partly out of the plane). The edge of the
+taken only as the continuation of the needle seen on the frame before: on its axis, and
+ending where its tip is tracked (the same needle, partly out of the plane). The edge of the
 view is the edge of the frame, of a black capture margin or of a sector mask; a black vessel
 inside the image is tissue.
 
@@ -63,7 +65,7 @@ from ._inplane_geometry import (
     on_line,
     sample_grid,
 )
-from ._inplane_line_echo import EchoTestParams, echo_along
+from ._inplane_line_echo import EchoTestParams, echo_along, echo_beyond
 
 __all__ = ["LineTrackerParams", "LineTracker"]
 
@@ -276,8 +278,9 @@ class LineTracker(Tracker):
           the region from edge to edge (both ends within ``edge_margin_mm`` of the edge,
           outwards along the line): that is an interface, a mask's edge, or a needle whose
           tip is out of view; nor may its deeper end, where a needle's tip would be, lie
-          there; and a segment floating in the tissue is taken only on the axis of a needle
-          seen entering (see the module's doc);
+          there; nor, with classical features, may its echo go on past its end to that
+          edge; and a segment floating in the tissue is taken only as the continuation of the
+          needle seen on the frame before (see the module's doc);
         - its priority: 1 when it enters through the edge (its shallower end within
           ``entry_margin_mm`` of the edge, along the line or straight: a shallow needle comes
           in through the skin a few millimetres along its own line from the top of the
@@ -335,6 +338,9 @@ class LineTracker(Tracker):
                 if not on_line(seg, *self._axis, p.track_window_deg, p.track_window_mm):
                     return (f"the {seg.length_mm:.0f} mm line floats in the tissue off the axis "
                             "of the needle seen entering")
+                if not self._continues_track(seg):
+                    return (f"the {seg.length_mm:.0f} mm line floats in the tissue on the "
+                            "needle's axis, but its end is not where the tracked tip is")
             if self.features.kind != "learned":
                 entry_first = d[1] > 0 if abs(d[1]) >= sin_min else a <= b
                 seen, share = echo_along(frame, seg, entry_first, p.echo)
@@ -342,12 +348,35 @@ class LineTracker(Tracker):
                     return (f"the {seg.length_mm:.0f} mm line's echo stands out of the tissue "
                             f"in {100 * share:.0f}% of its sections (needs "
                             f"{100 * p.echo.coverage:.0f}%, and of its entry half)")
+                tip_end, out = (seg.end_mm, d) if entry_first else (seg.start_mm, -d)
+                far = distance_to_edge(inner, frame, tip_end, out, max_mm=_MAX_DISTANCE_MM)
+                more = echo_beyond(frame, seg, entry_first, far, p.echo)
+                if more > 0 and far - more <= p.edge_margin_mm + p.echo.section_mm:
+                    return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's echo "
+                            "goes on past its end to the edge of the view")
             return ""
 
         def priority(seg: NeedleLine) -> int:
             return int(enters(seg))
 
         return check, priority
+
+    def _continues_track(self, seg: NeedleLine) -> bool:
+        """Whether a segment continues the needle seen on the frame before: its end away from
+        the entry passes the filter's gate on the tip. A needle leaving the plane shows a
+        floating piece of its axis, which ends at the tip only where the tip is; a piece
+        elsewhere on the axis shows no tip, and once the needle has been missed nothing tells
+        such a piece from tissue on the axis."""
+        if self._x is None or self._dir is None or self._misses:
+            return False
+        end = seg.end_mm if float(seg.direction @ self._dir) >= 0 else seg.start_mm
+        return self._gate_distance(end) <= chi2_gate(2, self.params.gate_probability)
+
+    def _gate_distance(self, z: np.ndarray) -> float:
+        """Mahalanobis distance of tip measurement ``z`` from the filter's prediction."""
+        y = z - self._x[:2]
+        S = self._P[:2, :2] + np.eye(2) * self.params.measurement_std_mm ** 2
+        return float(np.sqrt(y @ np.linalg.solve(S, y)))
 
     def _offset_mm(self) -> float:
         """Echo (wall facing the probe) to centre line, along the normal into the tissue."""
@@ -480,7 +509,11 @@ class LineTracker(Tracker):
         (down to ``learned_extend_level``, Canny's hysteresis); 0 with classical features and
         where the continuation reaches the edge of the view (the tip may lie beyond it)."""
         p = self.params
-        if self.features.kind != "learned" or p.learned_extend_level >= p.learned_level:
+        if self.features.kind != "learned":
+            far = distance_to_edge(inner, frame, seg.end_mm, seg.direction,
+                                   max_mm=_MAX_DISTANCE_MM)
+            return echo_beyond(frame, seg, True, far, p.echo)
+        if p.learned_extend_level >= p.learned_level:
             return 0.0
         longer = extend_end(wm, seg, p.learned_extend_level, p.search)
         if longer is seg or distance_to_edge(inner, frame, longer.end_mm, longer.direction,
@@ -510,6 +543,8 @@ class LineTracker(Tracker):
             if vals[k] >= p.tip_map_min:
                 end = pts[k]
                 used = True
+        else:  # the classical echo itself goes on this far (see _reach_mm)
+            end = end + reach_mm * seg.direction
         return end + self._offset_mm() * normal, used
 
     def _filter(self, z: np.ndarray) -> tuple[bool | None, bool]:
@@ -521,10 +556,7 @@ class LineTracker(Tracker):
         if self._x is None:
             self._start(z)
             return None, False
-        y = z - H @ self._x
-        S = H @ self._P @ H.T + R
-        d = float(np.sqrt(y @ np.linalg.solve(S, y)))
-        if d > chi2_gate(2, p.gate_probability):
+        if self._gate_distance(z) > chi2_gate(2, p.gate_probability):
             self._rejects += 1
             if self._rejects >= p.reinit_after_rejects:
                 self._start(z)

@@ -138,6 +138,32 @@ def test_a_tissue_line_off_the_needles_axis_is_not_taken_while_the_needle_is_gon
     assert np.median(err[back[0] + 45:]) < 1.0
 
 
+def test_a_piece_of_an_interface_entering_from_the_side_is_no_needle():
+    """seed 16's needle-free world: a horizontal interface whose first 5 mm stand out on the
+    classical map where it meets the left edge. Its echo goes on to the far edge of the view:
+    no tip there (30 of 30 frames were `tracking` before the echo was read past the line's
+    end; measured 1)."""
+    free = synth.generate("inplane", seed=16, frames=30, needle_free=True)
+    est = _tracker("classical").run(free)
+    assert sum(e.status == Status.TRACKING for e in est) <= 1
+
+
+def test_a_floating_piece_continues_only_the_needle_seen_on_the_frame_before():
+    from needlenet.backends import NeedleLine
+
+    tr = _tracker("classical")
+    d = np.array([-np.sqrt(0.5), np.sqrt(0.5)])
+    tr._dir, tr._x = d, np.array([0.0, 20.0, 0.0, 0.0])
+    tr._P = np.diag([0.3 ** 2, 0.3 ** 2, 4.0, 4.0])
+    at_tip = NeedleLine(True, "", np.array([0.0, 20.0]) - 5 * d, np.array([0.0, 20.0]), d)
+    behind = NeedleLine(True, "", np.array([0.0, 20.0]) - 15 * d,
+                        np.array([0.0, 20.0]) - 10 * d, d)
+    assert tr._continues_track(at_tip) and tr._continues_track(at_tip.reversed())
+    assert not tr._continues_track(behind)  # a piece of the axis behind the tip shows no tip
+    tr._misses = 1
+    assert not tr._continues_track(at_tip)  # the needle was missed on the frame before
+
+
 @pytest.mark.parametrize("image", [np.full((150, 120), 90, np.uint8),
                                    np.zeros((150, 120), np.uint8)])
 def test_constant_or_black_frame_is_not_tracked(image):
