@@ -13,7 +13,7 @@ from ._details import (
     VolumeDetails,
 )
 from ._inplane import InplaneParams, InplaneTracker
-from ._inplane_line import LineTrackerParams
+from ._inplane_line_params import LineTrackerParams
 from ._registry import (
     DEFAULT_FEATURES,
     DEFAULT_METHODS,

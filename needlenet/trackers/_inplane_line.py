@@ -19,7 +19,9 @@ edge of the view) is never taken for a new needle, and once a needle has been tr
 taken only as the continuation of the needle seen on the frame before: on its axis, and
 ending where its tip is tracked (the same needle, partly out of the plane). The edge of the
 view is the edge of the frame, of a black capture margin or of a sector mask; a black vessel
-inside the image is tissue.
+inside the image is tissue. One needle is tracked: a needle-like line seen beside it while it
+advanced is tissue, and is not taken for the needle when the needle leaves the plane
+(:mod:`._inplane_still`).
 
 Which end is the tip. A needle goes in from the skin (the top of the image) or from beyond a
 side edge and goes deeper as it advances, so of a segment that descends by more than
@@ -38,13 +40,12 @@ entry corner and 20-70 degree search; this tracker makes none of those assumptio
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import cv2
 import numpy as np
 
 from ..backends import (
-    LineSearchParams,
     NeedleLine,
     WorkingMap,
     chi2_gate,
@@ -65,109 +66,11 @@ from ._inplane_geometry import (
     on_line,
     sample_grid,
 )
-from ._inplane_line_echo import EchoTestParams, echo_along, echo_beyond
+from ._inplane_line_echo import echo_along, echo_beyond
+from ._inplane_line_params import MAX_DISTANCE_MM, LineTrackerParams
+from ._inplane_still import StillLines
 
 __all__ = ["LineTrackerParams", "LineTracker"]
-
-_MAX_DISTANCE_MM = 100.0  # the distances of the settings: a fraction of any image
-
-
-@dataclass(frozen=True)
-class LineTrackerParams:
-    """Settings (units in the names).
-
-    ``min_length_mm``: the shortest needle segment taken for a needle (5 mm: long enough to fix
-    a direction, shorter than any needle a user would track). ``learned_level``: a learned
-    shaft probability at or above this marks the needle (0.5: the map's decision level).
-    ``learned_extend_level``: past a needle's segment, the tip is also looked for as far as
-    the learned shaft probability stays at or above this along its line (Canny's hysteresis;
-    half the decision level: the map of a needle shallower or fainter than those it was
-    trained on hovers around 0.5 along it, tissue stays below 0.1); the tip moves there only
-    where the tip map reaches ``tip_map_min``. Equal to ``learned_level``: off.
-    ``classical_level``: the same for the classical line-contrast map, in speckle standard
-    deviations above the tissue beside the echo (2 SD). ``contrast_window_mm``: the side of
-    that map's tissue boxes. ``track_window_deg``/``track_window_mm``: while tracking,
-    the line is searched within these of the last line; ``switch_ratio``: a segment elsewhere
-    replaces it when its evidence sum is this many times larger; the whole frame is searched
-    for one every ``full_search_every_frames`` frames (a quarter second at 20 frames/s).
-    ``tip_window_mm``: the tip map's maximum is looked for this far behind and ahead of the
-    segment's end. ``tip_map_min``:
-    the tip map must reach this there to move the tip. ``accel_std_mm_s2``: the filter's
-    white-acceleration noise (a hand or robot changing the insertion speed within a fraction
-    of a second); ``measurement_std_mm``: the tip measurement's noise; ``initial_speed_std_mm_s``:
-    the speed's prior spread. ``gate_probability``: the chi-square gate of a tip measurement;
-    ``reinit_after_rejects``: gated-out measurements in a row after which the filter restarts
-    at the image's tip. ``forget_after_frames``: frames without a needle after which the track
-    is forgotten. ``needle_radius_mm``: maps that mark the wall facing the probe (learned
-    ``target_reference = "wall"`` and the classical echo) are moved by it to the centre line
-    (default 18 G). ``frame_rate_hz``: None takes the rate from the timestamps (20 Hz until two
-    frames have been seen). ``orientation_min_angle_deg``: see the module's doc.
-    ``edge_margin_mm``: a segment whose two ends both lie this close to the edge of the imaged
-    region runs across the image and shows no tip (an interface, or a needle whose tip is out
-    of view; so is the edge of a capture margin or sector mask): no needle.
-    ``entry_margin_mm``: a segment whose entry end lies this close to that edge (along the
-    line or straight) enters through it, as an inserted needle does; a floating one is taken
-    only within ``track_window_deg``/``track_window_mm`` of a needle tracked before.
-    ``echo``: with classical features a line is a needle only where its echo shows along it
-    (:mod:`._inplane_line_echo`).
-    ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
-    not read (the mask's step is no echo; the shipped in-plane model marks it up to 1.5 mm
-    in, measured on needle-free synth frames with sector masks and margins)."""
-
-    search: LineSearchParams = field(default_factory=LineSearchParams)
-    echo: EchoTestParams = field(default_factory=EchoTestParams)
-    min_length_mm: float = 5.0
-    learned_level: float = 0.5
-    learned_extend_level: float = 0.25
-    classical_level: float = 2.0
-    contrast_window_mm: float = 2.0
-    track_window_deg: float = 4.0
-    track_window_mm: float = 2.0
-    switch_ratio: float = 1.5
-    full_search_every_frames: int = 5
-    tip_window_mm: tuple[float, float] = (2.0, 1.0)
-    tip_map_min: float = 0.3
-    accel_std_mm_s2: float = 40.0
-    measurement_std_mm: float = 0.3
-    initial_speed_std_mm_s: float = 20.0
-    gate_probability: float = 0.997
-    reinit_after_rejects: int = 3
-    forget_after_frames: int = 5
-    needle_radius_mm: float = 0.635
-    frame_rate_hz: float | None = None
-    orientation_min_angle_deg: float = 5.0
-    edge_margin_mm: float = 2.0
-    entry_margin_mm: float = 3.0
-    mask_edge_mm: float = 1.5
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.learned_extend_level <= self.learned_level:
-            raise ValueError(f"learned_extend_level must lie in (0, learned_level], got "
-                             f"{self.learned_extend_level}")
-        for name in ("min_length_mm", "learned_level", "classical_level", "contrast_window_mm",
-                     "track_window_deg", "track_window_mm", "accel_std_mm_s2",
-                     "measurement_std_mm", "initial_speed_std_mm_s"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        if not 0.0 < self.gate_probability < 1.0:
-            raise ValueError(f"gate_probability must be in (0, 1), got {self.gate_probability}")
-        if min(self.reinit_after_rejects, self.forget_after_frames,
-               self.full_search_every_frames) < 1:
-            raise ValueError("reinit_after_rejects, forget_after_frames and "
-                             "full_search_every_frames must be >= 1")
-        if not self.needle_radius_mm >= 0:
-            raise ValueError(f"needle_radius_mm must be >= 0, got {self.needle_radius_mm}")
-        if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
-            raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
-        for name in ("edge_margin_mm", "entry_margin_mm", "mask_edge_mm", "track_window_mm",
-                     "contrast_window_mm", "min_length_mm"):
-            if not 0.0 <= getattr(self, name) <= _MAX_DISTANCE_MM:
-                raise ValueError(f"{name} must lie in 0-{_MAX_DISTANCE_MM:g} mm, got "
-                                 f"{getattr(self, name)}")
-        if not 0.0 < self.track_window_deg <= 90.0:
-            raise ValueError(f"track_window_deg must lie in (0, 90], got "
-                             f"{self.track_window_deg}")
-
 
 class LineTracker(Tracker):
     """Whole-frame needle line search with a Kalman filter on the tip (the default in-plane
@@ -206,6 +109,7 @@ class LineTracker(Tracker):
     def reset(self) -> None:
         super().reset()
         self._axis: tuple[np.ndarray, np.ndarray] | None = None  # (point, unit direction)
+        self._still = StillLines(self.params.still)
         self._forget()
 
     def _forget(self) -> None:
@@ -216,6 +120,7 @@ class LineTracker(Tracker):
         self._misses = 0
         self._rejects = 0
         self._since_full = 0
+        self._start_tip: np.ndarray | None = None  # where the filter started, mm
 
     @property
     def dt_s(self) -> float:
@@ -317,7 +222,7 @@ class LineTracker(Tracker):
         def enters(seg: NeedleLine) -> bool:
             return ends(seg)[2] <= p.entry_margin_mm
 
-        def check(seg: NeedleLine) -> str:
+        def shape(seg: NeedleLine) -> str:
             a, b, _ = ends(seg)
             if abs(seg.direction[1]) < sin_min and all(
                     straight_mm(q) <= p.edge_margin_mm
@@ -331,6 +236,13 @@ class LineTracker(Tracker):
             if abs(d[1]) >= sin_min and (b if d[1] > 0 else a) <= p.edge_margin_mm:
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's deeper end, "
                         "where a needle's tip would be, lies at the edge of the view")
+            return ""
+
+        def place(seg: NeedleLine) -> str:
+            if self._still.holds(seg) and not (self._axis is not None and on_line(
+                    seg, *self._axis, p.track_window_deg, p.track_window_mm)):
+                return (f"the {seg.length_mm:.0f} mm line stood still beside the needle tracked "
+                        "before: tissue")
             if not enters(seg):
                 if self._axis is None:
                     return (f"the {seg.length_mm:.0f} mm line floats in the tissue; a needle is "
@@ -341,25 +253,39 @@ class LineTracker(Tracker):
                 if not self._continues_track(seg):
                     return (f"the {seg.length_mm:.0f} mm line floats in the tissue on the "
                             "needle's axis, but its end is not where the tracked tip is")
-            if self.features.kind != "learned":
-                entry_first = d[1] > 0 if abs(d[1]) >= sin_min else a <= b
-                seen, share = echo_along(frame, seg, entry_first, p.echo)
-                if not seen:
-                    return (f"the {seg.length_mm:.0f} mm line's echo stands out of the tissue "
-                            f"in {100 * share:.0f}% of its sections (needs "
-                            f"{100 * p.echo.coverage:.0f}%, and of its entry half)")
-                tip_end, out = (seg.end_mm, d) if entry_first else (seg.start_mm, -d)
-                far = distance_to_edge(inner, frame, tip_end, out, max_mm=_MAX_DISTANCE_MM)
-                more = echo_beyond(frame, seg, entry_first, far, p.echo)
-                if more > 0 and far - more <= p.edge_margin_mm + p.echo.section_mm:
-                    return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's echo "
-                            "goes on past its end to the edge of the view")
             return ""
+
+        def echo(seg: NeedleLine) -> str:
+            if self.features.kind == "learned":
+                return ""
+            a, b, _ = ends(seg)
+            d = seg.direction
+            entry_first = d[1] > 0 if abs(d[1]) >= sin_min else a <= b
+            seen, share = echo_along(frame, seg, entry_first, p.echo)
+            if not seen:
+                return (f"the {seg.length_mm:.0f} mm line's echo stands out of the tissue "
+                        f"in {100 * share:.0f}% of its sections (needs "
+                        f"{100 * p.echo.coverage:.0f}%, and of its entry half)")
+            tip_end, out = (seg.end_mm, d) if entry_first else (seg.start_mm, -d)
+            far = distance_to_edge(inner, frame, tip_end, out, max_mm=MAX_DISTANCE_MM)
+            more = echo_beyond(frame, seg, entry_first, far, p.echo)
+            if more > 0 and far - more <= p.edge_margin_mm + p.echo.section_mm:
+                return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's echo "
+                        "goes on past its end to the edge of the view")
+            return ""
+
+        def check(seg: NeedleLine) -> str:
+            return shape(seg) or place(seg) or echo(seg)
+
+        def looks(seg: NeedleLine) -> str:
+            if not self._is_needle(seg):
+                return f"the {seg.length_mm:.1f} mm line is too short or too faint for a needle"
+            return shape(seg) or echo(seg)
 
         def priority(seg: NeedleLine) -> int:
             return int(enters(seg))
 
-        return check, priority
+        return check, priority, looks
 
     def _continues_track(self, seg: NeedleLine) -> bool:
         """Whether a segment continues the needle seen on the frame before: its end away from
@@ -396,7 +322,7 @@ class LineTracker(Tracker):
         wm = self._evidence(lik.shaft, map_grid, inner)
         if self._x is not None:
             self._x, self._P = predict(self._x, self._P, *self._motion(dt))
-        is_valid, priority = self._validity(frame, inner)
+        is_valid, priority, looks = self._validity(frame, inner)
         seg, new_line = self._search(wm, is_valid, priority)
         if not self._is_needle(seg):
             return self._missed(frame, seg)
@@ -410,7 +336,18 @@ class LineTracker(Tracker):
         self._misses = 0
         measured = tip_mm.copy()
         accepted, restarted = self._filter(tip_mm)
-        return self._estimate(frame, seg, measured, used_tip_map, accepted, restarted)
+        est = self._estimate(frame, seg, measured, used_tip_map, accepted, restarted)
+        if self._since_full == 0 and self._advanced_mm() >= self.params.still.advance_mm:
+            # the whole frame was searched: look beside the needle for still tissue lines
+            self._still.observe(wm, self._level(), self.params.search, self._line_point,
+                                self._dir, looks)
+        return est
+
+    def _advanced_mm(self) -> float:
+        """How far the tracked tip has moved along the needle since its filter started."""
+        if self._start_tip is None or self._x is None or self._dir is None:
+            return 0.0
+        return float((self._x[:2] - self._start_tip) @ self._dir)
 
     def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Constant velocity in (x, z) with white acceleration noise (F, Q)."""
@@ -511,7 +448,7 @@ class LineTracker(Tracker):
         p = self.params
         if self.features.kind != "learned":
             far = distance_to_edge(inner, frame, seg.end_mm, seg.direction,
-                                   max_mm=_MAX_DISTANCE_MM)
+                                   max_mm=MAX_DISTANCE_MM)
             return echo_beyond(frame, seg, True, far, p.echo)
         if p.learned_extend_level >= p.learned_level:
             return 0.0
@@ -570,6 +507,7 @@ class LineTracker(Tracker):
     def _start(self, z: np.ndarray) -> None:
         p = self.params
         self._x = np.array([z[0], z[1], 0.0, 0.0])
+        self._start_tip = np.array(z[:2], float)
         self._P = np.diag([p.measurement_std_mm ** 2] * 2 + [p.initial_speed_std_mm_s ** 2] * 2)
         self._rejects = 0
 

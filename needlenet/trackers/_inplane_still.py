@@ -1,0 +1,79 @@
+"""Needle-like lines that stood still beside the needle: tissue, not a needle.
+
+One needle is tracked. While it advances, any other line in the same frame that would pass
+for a needle (a straight echo entering through the edge of the view and ending inside it)
+cannot be that needle: it is a tissue structure, a fascia, a vessel wall, a tendon, which
+on a frame without the needle nothing tells from a faint needle. The `line` tracker looks for
+such lines on the frames on which it searches the whole frame, with the tracked needle's
+own echo band set aside, and refuses them later: when the needle leaves the plane, a line it
+had been seen beside is not taken for it.
+
+Only a needle that has advanced ``advance_mm`` since its track started is trusted to be the
+inserted one (a track that sits on a still tissue line itself does not advance), and lines
+within ``band_mm`` of it are its own echo and reverberations, not rivals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..backends import LineSearchParams, NeedleLine, WorkingMap, find_needle_line
+from ._inplane_geometry import on_line
+
+__all__ = ["StillLineParams", "StillLines"]
+
+
+@dataclass(frozen=True)
+class StillLineParams:
+    """``advance_mm``: how far the tracked tip must have moved along its axis since its track
+    started before lines beside it are taken for tissue (3 mm: ten times the tip
+    measurement's noise, three times the jitter of a map's end). ``band_mm``: half-width of
+    the tracked needle's own echo, with its reverberation tail, set aside in that search (5
+    mm: four reverberation lines a 14 G lumen apart, and the search's 2 mm band).
+    ``window_deg``/``window_mm``: a later line within these of a still line is that line."""
+
+    advance_mm: float = 3.0
+    band_mm: float = 5.0
+    window_deg: float = 4.0
+    window_mm: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("advance_mm", "band_mm", "window_deg", "window_mm"):
+            if not 0.0 < getattr(self, name) <= 100.0:
+                raise ValueError(f"{name} must lie in (0, 100], got {getattr(self, name)}")
+
+
+class StillLines:
+    """The still lines seen beside the tracked needle (see the module's doc)."""
+
+    def __init__(self, params: StillLineParams | None = None):
+        self.params = StillLineParams() if params is None else params
+        self.lines: list[tuple[np.ndarray, np.ndarray]] = []  # (point, unit direction)
+
+    def clear(self) -> None:
+        self.lines = []
+
+    def holds(self, seg: NeedleLine) -> bool:
+        """Whether ``seg`` lies on a line seen standing still beside the needle."""
+        p = self.params
+        return any(on_line(seg, point, d, p.window_deg, p.window_mm) for point, d in self.lines)
+
+    def observe(self, wm: WorkingMap, level: float, search: LineSearchParams,
+                needle_point: np.ndarray, needle_dir: np.ndarray, looks) -> None:
+        """Search ``wm`` once more with the tracked needle's band (around the line through
+        ``needle_point`` along ``needle_dir``) set aside; a line found whose look passes
+        ``looks`` (a function of a segment: '' for a needle's, else why not) is recorded
+        wherever it lies: beside the needle it may show only the part out of its band."""
+        p = self.params
+        h, w = wm.values.shape
+        n = np.array([-needle_dir[1], needle_dir[0]])
+        x = wm.x0 + wm.step * np.arange(w)
+        z = wm.z0 + wm.step * np.arange(h)
+        off = (x[None, :] - needle_point[0]) * n[0] + (z[:, None] - needle_point[1]) * n[1]
+        rest = WorkingMap(np.where(np.abs(off) > p.band_mm, wm.values, 0.0).astype(np.float32),
+                          wm.x0, wm.z0, wm.step)
+        seg = find_needle_line(rest, level, search, is_valid=looks)
+        if seg and not self.holds(seg):
+            self.lines.append((0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy()))
