@@ -277,8 +277,8 @@ class LineTracker(Tracker):
         def check(seg: NeedleLine) -> str:
             return shape(seg) or place(seg) or echo(seg)
 
-        def looks(seg: NeedleLine) -> str:
-            if not self._is_needle(seg):
+        def looks(seg: NeedleLine, level: float) -> str:
+            if not (seg.length_mm >= p.min_length_mm and seg.support >= level):
                 return f"the {seg.length_mm:.1f} mm line is too short or too faint for a needle"
             return shape(seg) or echo(seg)
 

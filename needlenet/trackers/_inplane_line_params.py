@@ -48,7 +48,8 @@ class LineTrackerParams:
     of view; so is the edge of a capture margin or sector mask): no needle.
     ``entry_margin_mm``: a segment whose entry end lies this close to that edge (along the
     line or straight) enters through it, as an inserted needle does; a floating one is taken
-    only within ``track_window_deg``/``track_window_mm`` of a needle tracked before.
+    only as the continuation of the needle seen on the frame before (on its axis, within
+    ``track_window_deg``/``track_window_mm``, its end inside the tip filter's gate).
     ``echo``: with classical features a line is a needle only where its echo shows along it
     (:mod:`._inplane_line_echo`). ``still``: lines seen standing still beside the advancing
     needle are tissue (:mod:`._inplane_still`).

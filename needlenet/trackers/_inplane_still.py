@@ -32,14 +32,20 @@ class StillLineParams:
     measurement's noise, three times the jitter of a map's end). ``band_mm``: half-width of
     the tracked needle's own echo, with its reverberation tail, set aside in that search (5
     mm: four reverberation lines a 14 G lumen apart, and the search's 2 mm band).
-    ``window_deg``/``window_mm``: a later line within these of a still line is that line."""
+    ``window_deg``/``window_mm``: a later line within these of a still line is that line.
+    ``level_ratio``: lines are looked for at this fraction of the level that marks a needle
+    (Canny's hysteresis: a line just under the level beside the needle, in its clutter, may
+    stand just over it once the needle has gone)."""
 
     advance_mm: float = 3.0
     band_mm: float = 5.0
     window_deg: float = 4.0
     window_mm: float = 2.0
+    level_ratio: float = 0.5
 
     def __post_init__(self) -> None:
+        if not 0.0 < self.level_ratio <= 1.0:
+            raise ValueError(f"level_ratio must lie in (0, 1], got {self.level_ratio}")
         for name in ("advance_mm", "band_mm", "window_deg", "window_mm"):
             if not 0.0 < getattr(self, name) <= 100.0:
                 raise ValueError(f"{name} must lie in (0, 100], got {getattr(self, name)}")
@@ -63,9 +69,10 @@ class StillLines:
     def observe(self, wm: WorkingMap, level: float, search: LineSearchParams,
                 needle_point: np.ndarray, needle_dir: np.ndarray, looks) -> None:
         """Search ``wm`` once more with the tracked needle's band (around the line through
-        ``needle_point`` along ``needle_dir``) set aside; a line found whose look passes
-        ``looks`` (a function of a segment: '' for a needle's, else why not) is recorded
-        wherever it lies: beside the needle it may show only the part out of its band."""
+        ``needle_point`` along ``needle_dir``) set aside, at ``level_ratio`` of ``level``;
+        a line found whose look passes ``looks`` (a function of a segment and the level: ''
+        for a needle's, else why not) is recorded wherever it lies: beside the needle it may
+        show only the part out of its band."""
         p = self.params
         h, w = wm.values.shape
         n = np.array([-needle_dir[1], needle_dir[0]])
@@ -74,6 +81,7 @@ class StillLines:
         off = (x[None, :] - needle_point[0]) * n[0] + (z[:, None] - needle_point[1]) * n[1]
         rest = WorkingMap(np.where(np.abs(off) > p.band_mm, wm.values, 0.0).astype(np.float32),
                           wm.x0, wm.z0, wm.step)
-        seg = find_needle_line(rest, level, search, is_valid=looks)
+        low = p.level_ratio * level
+        seg = find_needle_line(rest, low, search, is_valid=lambda s: looks(s, low))
         if seg and not self.holds(seg):
             self.lines.append((0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy()))

@@ -42,7 +42,7 @@ def test_a_line_beside_the_needle_is_recorded_and_the_needle_is_not():
     still = StillLines()
     n = _seg(*NEEDLE)
     still.observe(wm, 0.5, LineSearchParams(), 0.5 * (n.start_mm + n.end_mm), n.direction,
-                  lambda seg: "")
+                  lambda seg, level: "")
     assert len(still.lines) == 1
     assert still.holds(_seg(*TISSUE)) and still.holds(_seg(*TISSUE).reversed())
     assert not still.holds(n)
@@ -54,7 +54,8 @@ def test_a_line_the_look_rejects_is_not_recorded():
     wm = _map_with_lines(NEEDLE, TISSUE)
     still = StillLines()
     n = _seg(*NEEDLE)
-    still.observe(wm, 0.5, LineSearchParams(), n.start_mm, n.direction, lambda seg: "no")
+    still.observe(wm, 0.5, LineSearchParams(), n.start_mm, n.direction,
+                  lambda seg, level: "no")
     assert still.lines == []
 
 
