@@ -120,7 +120,6 @@ class LineTracker(Tracker):
         self._misses = 0
         self._rejects = 0
         self._since_full = 0
-        self._start_tip: np.ndarray | None = None  # where the filter started, mm
 
     @property
     def dt_s(self) -> float:
@@ -337,17 +336,11 @@ class LineTracker(Tracker):
         measured = tip_mm.copy()
         accepted, restarted = self._filter(tip_mm)
         est = self._estimate(frame, seg, measured, used_tip_map, accepted, restarted)
-        if self._since_full == 0 and self._advanced_mm() >= self.params.still.advance_mm:
+        if self._since_full == 0:
             # the whole frame was searched: look beside the needle for still tissue lines
             self._still.observe(wm, self._level(), self.params.search, self._line_point,
-                                self._dir, looks)
+                                self._dir, self._x[:2], looks)
         return est
-
-    def _advanced_mm(self) -> float:
-        """How far the tracked tip has moved along the needle since its filter started."""
-        if self._start_tip is None or self._x is None or self._dir is None:
-            return 0.0
-        return float((self._x[:2] - self._start_tip) @ self._dir)
 
     def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Constant velocity in (x, z) with white acceleration noise (F, Q)."""
@@ -507,7 +500,6 @@ class LineTracker(Tracker):
     def _start(self, z: np.ndarray) -> None:
         p = self.params
         self._x = np.array([z[0], z[1], 0.0, 0.0])
-        self._start_tip = np.array(z[:2], float)
         self._P = np.diag([p.measurement_std_mm ** 2] * 2 + [p.initial_speed_std_mm_s ** 2] * 2)
         self._rejects = 0
 

@@ -8,9 +8,11 @@ such lines on the frames on which it searches the whole frame, with the tracked 
 own echo band set aside, and refuses them later: when the needle leaves the plane, a line it
 had been seen beside is not taken for it.
 
-Only a needle that has advanced ``advance_mm`` since its track started is trusted to be the
-inserted one (a track that sits on a still tissue line itself does not advance), and lines
-within ``band_mm`` of it are its own echo and reverberations, not rivals.
+A line is recorded only once it has been seen twice at the same place while the tracked tip
+moved ``advance_mm`` in between: the needle advanced and the line stood still. A probe moved
+by hand moves both (neither is recorded), and a track that sits on a still tissue line itself
+does not advance, so a needle beside it is never taken for tissue. Lines within ``band_mm`` of
+the tracked line are its own echo and reverberations, not rivals.
 """
 
 from __future__ import annotations
@@ -24,11 +26,13 @@ from ._inplane_geometry import on_line
 
 __all__ = ["StillLineParams", "StillLines"]
 
+_MAX_SEEN = 64  # sightings kept until seen again: a bound on memory, not a setting
+
 
 @dataclass(frozen=True)
 class StillLineParams:
-    """``advance_mm``: how far the tracked tip must have moved along its axis since its track
-    started before lines beside it are taken for tissue (3 mm: ten times the tip
+    """``advance_mm``: how far the tracked tip must have moved between two sightings of a line
+    at the same place for the line to be taken for tissue (3 mm: ten times the tip
     measurement's noise, three times the jitter of a map's end). ``band_mm``: half-width of
     the tracked needle's own echo, with its reverberation tail, set aside in that search (5
     mm: four reverberation lines a 14 G lumen apart, and the search's 2 mm band).
@@ -57,22 +61,28 @@ class StillLines:
     def __init__(self, params: StillLineParams | None = None):
         self.params = StillLineParams() if params is None else params
         self.lines: list[tuple[np.ndarray, np.ndarray]] = []  # (point, unit direction)
-
-    def clear(self) -> None:
-        self.lines = []
+        self._seen: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (+ tip then)
 
     def holds(self, seg: NeedleLine) -> bool:
         """Whether ``seg`` lies on a line seen standing still beside the needle."""
+        return self._on(seg, self.lines) is not None
+
+    def _on(self, seg: NeedleLine, lines) -> int | None:
         p = self.params
-        return any(on_line(seg, point, d, p.window_deg, p.window_mm) for point, d in self.lines)
+        for k, (point, d, *_) in enumerate(lines):
+            if on_line(seg, point, d, p.window_deg, p.window_mm):
+                return k
+        return None
 
     def observe(self, wm: WorkingMap, level: float, search: LineSearchParams,
-                needle_point: np.ndarray, needle_dir: np.ndarray, looks) -> None:
+                needle_point: np.ndarray, needle_dir: np.ndarray, tip_mm: np.ndarray,
+                looks) -> None:
         """Search ``wm`` once more with the tracked needle's band (around the line through
         ``needle_point`` along ``needle_dir``) set aside, at ``level_ratio`` of ``level``;
         a line found whose look passes ``looks`` (a function of a segment and the level: ''
-        for a needle's, else why not) is recorded wherever it lies: beside the needle it may
-        show only the part out of its band."""
+        for a needle's, else why not), wherever it lies (beside the needle it may show only
+        the part out of its band), is noted with the tracked tip ``tip_mm``, and recorded
+        when it is found again there after the tip has moved ``advance_mm``."""
         p = self.params
         h, w = wm.values.shape
         n = np.array([-needle_dir[1], needle_dir[0]])
@@ -83,5 +93,13 @@ class StillLines:
                           wm.x0, wm.z0, wm.step)
         low = p.level_ratio * level
         seg = find_needle_line(rest, low, search, is_valid=lambda s: looks(s, low))
-        if seg and not self.holds(seg):
-            self.lines.append((0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy()))
+        if not seg or self.holds(seg):
+            return
+        k = self._on(seg, self._seen)
+        if k is None:
+            del self._seen[:len(self._seen) - _MAX_SEEN + 1]  # the oldest sightings go first
+            self._seen.append((0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy(),
+                               np.array(tip_mm, float)))
+        elif np.linalg.norm(np.asarray(tip_mm) - self._seen[k][2]) >= p.advance_mm:
+            point, d, _ = self._seen.pop(k)
+            self.lines.append((point, d))

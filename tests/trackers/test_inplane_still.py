@@ -37,25 +37,41 @@ NEEDLE = ((39.0, 0.0), (15.0, 18.0))
 TISSUE = ((5.0, 0.0), (2.0, 15.0))
 
 
-def test_a_line_beside_the_needle_is_recorded_and_the_needle_is_not():
-    wm = _map_with_lines(NEEDLE, TISSUE)
-    still = StillLines()
+def _observe(still, wm, tip, looks=lambda seg, level: ""):
     n = _seg(*NEEDLE)
     still.observe(wm, 0.5, LineSearchParams(), 0.5 * (n.start_mm + n.end_mm), n.direction,
-                  lambda seg, level: "")
-    assert len(still.lines) == 1
+                  np.asarray(tip, float), looks)
+
+
+def test_a_line_seen_twice_in_place_while_the_needle_moved_is_recorded():
+    wm = _map_with_lines(NEEDLE, TISSUE)
+    still = StillLines()
+    _observe(still, wm, (20.0, 14.0))
+    assert still.lines == []  # seen once
+    _observe(still, wm, (19.0, 15.0))
+    assert still.lines == []  # the needle moved 1.4 mm: not yet
+    _observe(still, wm, (17.0, 16.5))
+    assert len(still.lines) == 1  # 4.2 mm since the first sighting
     assert still.holds(_seg(*TISSUE)) and still.holds(_seg(*TISSUE).reversed())
-    assert not still.holds(n)
+    assert not still.holds(_seg(*NEEDLE))
     shifted = _seg(np.add(TISSUE[0], (4.0, 0.0)), np.add(TISSUE[1], (4.0, 0.0)))
     assert not still.holds(shifted)  # 4 mm beside it: another line
+
+
+def test_a_line_that_moved_with_the_needle_is_not_recorded():
+    """A probe moved by hand moves the tissue line as well as the needle."""
+    still = StillLines()
+    _observe(still, _map_with_lines(NEEDLE, TISSUE), (20.0, 14.0))
+    moved = tuple(tuple(np.add(q, (6.0, 0.0))) for q in TISSUE)
+    _observe(still, _map_with_lines(NEEDLE, moved), (26.0, 14.0))
+    assert still.lines == []
 
 
 def test_a_line_the_look_rejects_is_not_recorded():
     wm = _map_with_lines(NEEDLE, TISSUE)
     still = StillLines()
-    n = _seg(*NEEDLE)
-    still.observe(wm, 0.5, LineSearchParams(), n.start_mm, n.direction,
-                  lambda seg, level: "no")
+    for tip in ((20.0, 14.0), (15.0, 18.0)):
+        _observe(still, wm, tip, looks=lambda seg, level: "no")
     assert still.lines == []
 
 
@@ -69,7 +85,7 @@ def test_a_tissue_line_from_the_skin_is_not_taken_once_the_needle_is_gone(seed):
     """Issue 21's protocol, shortened: seed 14's and 22's worlds hold a straight tissue line
     entering through the skin (7.6 and 14.7 mm; the learned map marks both like a faint
     needle). Seen beside the advancing needle, it is not taken when the needle leaves
-    (frames 40-69 needle-free: 30 of 30 `tracking` before this rule, measured 0)."""
+    (frames 40-69 needle-free: 30 of 30 `tracking` without this rule, measured 0)."""
     seq = synth.generate("inplane", seed=seed, frames=70)
     free = synth.generate("inplane", seed=seed, frames=70, needle_free=True)
     images = seq.images.copy()
