@@ -97,7 +97,8 @@ class StillLines:
             return
         k = self._on(seg, self._seen)
         if k is None:
-            del self._seen[:len(self._seen) - _MAX_SEEN + 1]  # the oldest sightings go first
+            if len(self._seen) >= _MAX_SEEN:
+                del self._seen[0]  # the oldest sighting goes first
             self._seen.append((0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy(),
                                np.array(tip_mm, float)))
         elif np.linalg.norm(np.asarray(tip_mm) - self._seen[k][2]) >= p.advance_mm:
