@@ -175,20 +175,23 @@ class LineTracker(Tracker):
         return eroded[kz:-kz, kx:-kx] > 0
 
     def _validity(self, frame: Frame, inner: np.ndarray):
-        """Two functions of a segment, from where its ends lie against the edge of the region
-        ``inner`` (where evidence is read):
+        """Three functions of a segment, from where its ends lie against the edge of the
+        region ``inner`` (where evidence is read) and, with classical features, its echo:
 
         - the test it must pass to be a needle whose tip is in view: it must not run across
           the region from edge to edge (both ends within ``edge_margin_mm`` of the edge,
           outwards along the line): that is an interface, a mask's edge, or a needle whose
           tip is out of view; nor may its deeper end, where a needle's tip would be, lie
           there; nor, with classical features, may its echo go on past its end to that
-          edge; and a segment floating in the tissue is taken only as the continuation of the
-          needle seen on the frame before (see the module's doc);
+          edge; it must not lie on a line seen standing still beside the needle; and a
+          segment floating in the tissue is taken only as the continuation of the needle
+          seen on the frame before (see the module's doc);
         - its priority: 1 when it enters through the edge (its shallower end within
           ``entry_margin_mm`` of the edge, along the line or straight: a shallow needle comes
           in through the skin a few millimetres along its own line from the top of the
-          view), else 0.
+          view), else 0;
+        - its look alone, at a given level (long and strong enough, tip in view, echo): the
+          test of a line beside the needle (:class:`StillLines`), wherever it lies.
         """
         p = self.params
         reach = max(p.edge_margin_mm, p.entry_margin_mm) + 1.0
@@ -435,9 +438,10 @@ class LineTracker(Tracker):
 
     def _reach_mm(self, seg: NeedleLine, wm: WorkingMap, frame: Frame,
                   inner: np.ndarray) -> float:
-        """How far (mm) a learned needle's segment continues past its end on weaker evidence
-        (down to ``learned_extend_level``, Canny's hysteresis); 0 with classical features and
-        where the continuation reaches the edge of the view (the tip may lie beyond it)."""
+        """How far (mm) a needle's segment continues past its end: on a learned map, on
+        weaker evidence (down to ``learned_extend_level``, Canny's hysteresis; 0 where that
+        continuation reaches the edge of the view, the tip may lie beyond it); with classical
+        features, as far as its echo goes on (:func:`echo_beyond`)."""
         p = self.params
         if self.features.kind != "learned":
             far = distance_to_edge(inner, frame, seg.end_mm, seg.direction,
