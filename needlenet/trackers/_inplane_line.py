@@ -268,9 +268,7 @@ class LineTracker(Tracker):
                 return (f"the {seg.length_mm:.0f} mm line's echo stands out of the tissue "
                         f"in {100 * share:.0f}% of its sections (needs "
                         f"{100 * p.echo.coverage:.0f}%, and of its entry half)")
-            tip_end, out = (seg.end_mm, d) if entry_first else (seg.start_mm, -d)
-            far = distance_to_edge(inner, frame, tip_end, out, max_mm=MAX_DISTANCE_MM)
-            more = echo_beyond(frame, seg, entry_first, far, p.echo)
+            more, far = self._echo_beyond(frame, inner, seg if entry_first else seg.reversed())
             if more > 0 and far - more <= p.edge_margin_mm + p.echo.section_mm:
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's echo "
                         "goes on past its end to the edge of the view")
@@ -320,6 +318,7 @@ class LineTracker(Tracker):
             raise ValueError(f"LineTracker needs 2-D images, got a {frame.grid.ndim}-D grid")
         dt = self._update_dt(frame.t)
         lik, map_grid = self.features.native_likelihood(frame)
+        self._beyond: dict = {}  # _echo_beyond's memo for this frame
         inner = self._inner_region(frame)
         wm = self._evidence(lik.shaft, map_grid, inner)
         if self._x is not None:
@@ -436,6 +435,18 @@ class LineTracker(Tracker):
             return seg if float(seg.direction @ self._dir) >= 0 else seg.reversed()
         return entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, valid)
 
+    def _echo_beyond(self, frame: Frame, inner: np.ndarray, seg: NeedleLine
+                     ) -> tuple[float, float]:
+        """(how far the echo goes on past the end of ``seg``, oriented entry to tip; how far
+        the edge of the view lies past that end), both mm, read once per segment and frame:
+        the validity test and the tip both ask (the memo is emptied with each frame)."""
+        key = (*seg.start_mm, *seg.end_mm)
+        if key not in self._beyond:
+            far = distance_to_edge(inner, frame, seg.end_mm, seg.direction,
+                                   max_mm=MAX_DISTANCE_MM)
+            self._beyond[key] = (echo_beyond(frame, seg, True, far, self.params.echo), far)
+        return self._beyond[key]
+
     def _reach_mm(self, seg: NeedleLine, wm: WorkingMap, frame: Frame,
                   inner: np.ndarray) -> float:
         """How far (mm) a needle's segment continues past its end: on a learned map, on
@@ -444,9 +455,7 @@ class LineTracker(Tracker):
         features, as far as its echo goes on (:func:`echo_beyond`)."""
         p = self.params
         if self.features.kind != "learned":
-            far = distance_to_edge(inner, frame, seg.end_mm, seg.direction,
-                                   max_mm=MAX_DISTANCE_MM)
-            return echo_beyond(frame, seg, True, far, p.echo)
+            return self._echo_beyond(frame, inner, seg)[0]
         if p.learned_extend_level >= p.learned_level:
             return 0.0
         longer = extend_end(wm, seg, p.learned_extend_level, p.search)
