@@ -69,12 +69,16 @@ def load_checkpoint(path: str | os.PathLike) -> tuple[nn.Module, dict]:
 def export_onnx(net: nn.Module, modality: str, spacing_mm: float, out: str | os.PathLike,
                 version: str = "0.1.0", extra_metadata: dict | None = None,
                 overwrite: bool = False, seed: int = 0,
-                target_reference: str = "centerline", normalization: str = "fixed") -> dict:
+                target_reference: str = "centerline", normalization: str = "fixed",
+                speckle_cell_mm: float | None = None) -> dict:
     """Write ``net`` as ONNX (input ``image``, output ``likelihood``, dynamic spatial axes).
 
     ``normalization``: a key of ``NORMALIZATIONS`` (the model's input intensity scaling).
     ``target_reference`` (metadata): where the maps mark the needle, ``"centerline"`` or
     ``"wall"`` (the wall facing the probe; see ``training.data.WALL_REFERENCED``).
+    ``speckle_cell_mm`` (metadata, 2D models): the training worlds' median speckle cell size
+    on the model's grid (``training.speckle``), to which the runtime matches a recording's
+    grid.
 
     onnxruntime's output is compared with torch's on random inputs of several (odd-padded)
     sizes; if the largest absolute difference exceeds 1e-4, :class:`ExportError` is raised
@@ -112,6 +116,8 @@ def export_onnx(net: nn.Module, modality: str, spacing_mm: float, out: str | os.
             "output_stride": str(OUTPUT_STRIDE), "input_multiple": str(INPUT_MULTIPLE),
             "channels": json.dumps(["shaft", "tip"]),
             "target_reference": target_reference,
+            **({"speckle_cell_mm": json.dumps(float(speckle_cell_mm))}
+               if speckle_cell_mm is not None else {}),
         }
         meta.update({k: str(v) for k, v in (extra_metadata or {}).items()})
         del model.metadata_props[:]

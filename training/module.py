@@ -58,7 +58,8 @@ class LikelihoodModule(L.LightningModule):
     def __init__(self, net: nn.Module, modality: str, spacing_mm: float, lr: float = 3e-3,
                  max_steps: int = 1000, weight_decay: float = 1e-4,
                  target_reference: str = "centerline", normalization: str = "fixed",
-                 pos_weight: tuple[float, float] = (20.0, 50.0)):
+                 pos_weight: tuple[float, float] = (20.0, 50.0),
+                 speckle_cell_mm: float | None = None):
         super().__init__()
         self.save_hyperparameters(ignore=["net"])
         self.net = net

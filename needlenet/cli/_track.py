@@ -90,7 +90,7 @@ def run(args) -> int:
 
     try:  # a long recording's frames are read as they are tracked: a damaged one is found here
         estimates = _run_tracker(args, tracker, seq)
-        _report(args, seq, estimates, out_json, overlay, out_plus)
+        _report(args, seq, estimates, out_json, overlay, out_plus, _model_grid(tracker))
     except RecordingError as exc:
         raise CLIError(str(exc)) from None
     return 0
@@ -285,14 +285,29 @@ def _run_tracker(args, tracker, seq) -> list:
     return estimates
 
 
-def _report(args, seq, estimates, out_json, overlay, out_plus) -> None:
+def _model_grid(tracker) -> dict:
+    """For learned features: the grid the model ran on and the recording's speckle that chose
+    it (the model's own grid where the model records no training speckle)."""
+    from ..features import LearnedFeatures
+
+    f = getattr(tracker, "features", None)
+    if not isinstance(f, LearnedFeatures):
+        return {}
+    out = {"model_grid_mm": round(float(f.spacing_mm[0]), 4)}
+    if f.recording_speckle_mm is not None:
+        out["speckle_widths_mm"] = [round(v, 3) for v in f.recording_speckle_mm]
+        out["training_speckle_cell_mm"] = f.speckle_cell_mm
+    return out
+
+
+def _report(args, seq, estimates, out_json, overlay, out_plus, model_grid=None) -> None:
     """The summary on stdout, then the ``--json``, ``--overlay`` and ``--out-plus`` files."""
     import json
 
     from ..eval import evaluate, latency_summary
 
     summary = {"file": str(args.file), "tracker": args.tracker, "method": args.method,
-               "features": args.features, "frames": seq.n_frames}
+               "features": args.features, "frames": seq.n_frames, **(model_grid or {})}
     if seq.has_labels:
         summary.update(evaluate(args.tracker, estimates, seq)["summary"])
     else:

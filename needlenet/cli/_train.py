@@ -90,7 +90,8 @@ def run_train(args) -> int:
                                         **({"train_params": " ".join(args.param)}
                                            if args.param else {})},
                         target_reference=hp.get("target_reference", "centerline"),
-                        normalization=hp.get("normalization", "fixed"))
+                        normalization=hp.get("normalization", "fixed"),
+                        speckle_cell_mm=hp.get("speckle_cell_mm"))
         print(f"wrote {export} ({r['bytes']} bytes, onnxruntime vs torch {r['max_abs_diff']:.1e})")
     return 0
 
@@ -140,7 +141,8 @@ def run_export(args) -> int:
         net, hp = load_checkpoint(args.checkpoint)
         r = export_onnx(net, hp["modality"], hp["spacing_mm"], out, overwrite=args.overwrite,
                         target_reference=hp.get("target_reference", "centerline"),
-                        normalization=hp.get("normalization", "fixed"))
+                        normalization=hp.get("normalization", "fixed"),
+                        speckle_cell_mm=hp.get("speckle_cell_mm"))
     except (ValueError, ExportError) as exc:
         raise CLIError(f"export: {exc}") from None
     print(f"wrote {out} ({r['bytes']} bytes, opset {r['opset']}, IR {r['ir_version']}, "

@@ -32,6 +32,7 @@ from ._resample import (
     to_frame_grid,
     to_model_grid,
 )
+from ._speckle import grid_scale, speckle_widths
 
 __all__ = ["GridMaps", "LearnedFeatures", "ModelError", "SHIPPED_MODELS", "plan_boxes",
            "shipped_model_path", "wall_offsets"]
@@ -219,6 +220,8 @@ class LearnedFeatures(FeatureSource):
                                   "std": float(norm["std"])}
             if self.normalization["mode"] not in NORMALIZATIONS:
                 raise ValueError(f"normalization mode {self.normalization['mode']!r}")
+            self.speckle_cell_mm = None if "speckle_cell_mm" not in meta else \
+                float(meta["speckle_cell_mm"])
             self.stride = int(meta.get("output_stride", 2))
             self.multiple = int(meta.get("input_multiple", 4))
         except (KeyError, ValueError, TypeError, AttributeError, RecursionError) as exc:
@@ -236,6 +239,9 @@ class LearnedFeatures(FeatureSource):
             apply_weights(np.zeros((2, 2, 2), np.float32), [np.eye(2)] * 3)
         self._grid: GridMaps | None = None
         self._grid_key: tuple | None = None
+        self.model_spacing_mm = self.spacing_mm  # the grid the model was trained on
+        self._speckle_grids: dict[tuple, tuple[float, ...]] = {}
+        self.recording_speckle_mm: tuple[float, float] | None = None  # last measured widths
         self.path = path
         self.name = f"learned:{path.name}"
         self.margin_mm = float(margin_mm)
@@ -259,6 +265,9 @@ class LearnedFeatures(FeatureSource):
         if sp.shape != (nd,) or not np.all((sp >= 0.005) & (sp <= 5.0)):
             raise ModelError(f"model {path}: metadata spacing_mm {list(self.spacing_mm)} must "
                              f"be {nd} values in 0.005-5 mm")
+        if self.speckle_cell_mm is not None and not (nd == 2 and 0 < self.speckle_cell_mm <= 50):
+            raise ModelError(f"model {path}: metadata speckle_cell_mm {self.speckle_cell_mm} "
+                             "must be a size in 0-50 mm, on a 2D model")
         max_multiple = 32 if nd == 3 else 256
         if not 1 <= self.stride <= 16 or not 1 <= self.multiple <= max_multiple:
             raise ModelError(f"model {path}: metadata output_stride {self.stride} and "
@@ -323,6 +332,31 @@ class LearnedFeatures(FeatureSource):
         finally:
             timer.cancel()
 
+    def match_speckle(self, image: np.ndarray, spacing_mm) -> tuple[float, ...]:
+        """The grid the model runs on for frames like ``image`` (2D), returned and set: the
+        model's own, or for a model that records its training worlds' speckle cell size
+        (``speckle_cell_mm``) one coarsened so that the recording's speckle has that size on
+        it (:mod:`._speckle`). Chosen on the first frame of a shape and spacing that holds
+        speckle, then kept for the recording; the widths measured are kept in
+        ``recording_speckle_mm``."""
+        if self.speckle_cell_mm is None or np.ndim(image) != 2:
+            return self.spacing_mm
+        key = (tuple(np.shape(image)), tuple(float(s) for s in spacing_mm))
+        grid = self._speckle_grids.get(key)
+        if grid is None:
+            w = speckle_widths(image, spacing_mm, self.model_spacing_mm)
+            if w is None:  # no speckle on this frame (blank, masked): the model's grid for now
+                self.spacing_mm = self.model_spacing_mm
+                return self.spacing_mm
+            self.recording_speckle_mm = (float(w[0]), float(w[1]))
+            s = grid_scale(w, self.speckle_cell_mm)
+            grid = tuple(v * s for v in self.model_spacing_mm)
+            if len(self._speckle_grids) >= 16:  # a stream of ever-new frame sizes
+                self._speckle_grids.clear()
+            self._speckle_grids[key] = grid
+        self.spacing_mm = grid
+        return grid
+
     def check_frame_size(self, shape, spacing_mm) -> tuple[int, ...]:
         """The shape a frame of ``shape`` at ``spacing_mm`` takes on the model's grid; a
         ModelError when it exceeds :data:`MAX_MODEL_PIXELS` (a model made for 0.005 mm
@@ -367,6 +401,7 @@ class LearnedFeatures(FeatureSource):
         im = np.asarray(frame.image)
         if im.ndim != 2:
             return self.likelihood(frame), frame.grid
+        self.match_speckle(im, frame.grid.spacing_mm)
         maps = self._model_grid_maps(im, frame.grid.spacing_mm)
         return (Likelihood(shaft=maps[0], tip=maps[1], source=self.name),
                 model_grid(frame.grid, maps.shape[1:]))
@@ -377,6 +412,7 @@ class LearnedFeatures(FeatureSource):
         voxels (:meth:`region_likelihood`). Away from the ROI or region the maps are 0."""
         im = np.asarray(frame.image)
         sp = frame.grid.spacing_mm
+        self.match_speckle(im, sp)
         if roi is None and im.ndim == 3:  # mapped back by GridMaps, in half cv2's time
             return self.region_likelihood(frame, None)
         if roi is None:
