@@ -13,15 +13,16 @@ constant-velocity Kalman filter on the tip's (x, z) smooths it between frames. A
 runs across the imaged region from edge to edge shows no tip (a bright tissue interface, or a
 needle whose tip has left the view, or the edge of a capture margin or sector mask) and is not
 taken for one; nor is a segment whose deeper end, where a needle's tip would be, lies at that
-edge (the tip is out of view). A needle comes in through the skin or the side of the view
-and goes in along its axis, so a segment floating in the tissue (its entry end away from the
-edge of the view) is never taken for a new needle, and once a needle has been tracked it is
-taken only as the continuation of the needle seen on the frame before: on its axis, and
-ending where its tip is tracked (the same needle, partly out of the plane). The edge of the
-view is the edge of the frame, of a black capture margin or of a sector mask; a black vessel
-inside the image is tissue. One needle is tracked: a needle-like line seen beside it while it
-advanced is tissue, and is not taken for the needle when the needle leaves the plane
-(:mod:`._inplane_still`).
+edge (the tip is out of view), nor one whose echo in the image goes on past its end to that
+edge (a shaft map may mark only part of an interface). A needle comes in through the skin or
+the side of the view and goes in along its axis, so a segment floating in the tissue (its
+entry end away from the edge of the view) is never taken for a new needle, and once a needle
+has been tracked it is taken only as the continuation of the needle seen on the frame before:
+on its axis, and ending where its tip is tracked (the same needle, partly out of the plane).
+The edge of the view is the edge of the frame, of a black capture margin or of a sector mask;
+a black vessel inside the image is tissue. One needle is tracked: a needle-like line seen
+beside it while it advanced is tissue, and is not taken for the needle when the needle leaves
+the plane (:mod:`._inplane_still`).
 
 Which end is the tip. A needle goes in from the skin (the top of the image) or from beyond a
 side edge and goes deeper as it advances, so of a segment that descends by more than
@@ -176,14 +177,15 @@ class LineTracker(Tracker):
 
     def _validity(self, frame: Frame, inner: np.ndarray):
         """Three functions of a segment, from where its ends lie against the edge of the
-        region ``inner`` (where evidence is read) and, with classical features, its echo:
+        region ``inner`` (where evidence is read) and its echo in the image:
 
         - the test it must pass to be a needle whose tip is in view: it must not run across
           the region from edge to edge (both ends within ``edge_margin_mm`` of the edge,
           outwards along the line): that is an interface, a mask's edge, or a needle whose
           tip is out of view; nor may its deeper end, where a needle's tip would be, lie
-          there; nor, with classical features, may its echo go on past its end to that
-          edge; it must not lie on a line seen standing still beside the needle; and a
+          there; nor may its echo go on past its end to that edge (a learned map may mark
+          only part of an interface), and with classical features it must show along the
+          line; it must not lie on a line seen standing still beside the needle; and a
           segment floating in the tissue is taken only as the continuation of the needle
           seen on the frame before (see the module's doc);
         - its priority: 1 when it enters through the edge (its shallower end within
@@ -258,16 +260,15 @@ class LineTracker(Tracker):
             return ""
 
         def echo(seg: NeedleLine) -> str:
-            if self.features.kind == "learned":
-                return ""
             a, b, _ = ends(seg)
             d = seg.direction
             entry_first = d[1] > 0 if abs(d[1]) >= sin_min else a <= b
-            seen, share = echo_along(frame, seg, entry_first, p.echo)
-            if not seen:
-                return (f"the {seg.length_mm:.0f} mm line's echo stands out of the tissue "
-                        f"in {100 * share:.0f}% of its sections (needs "
-                        f"{100 * p.echo.coverage:.0f}%, and of its entry half)")
+            if self.features.kind != "learned":
+                seen, share = echo_along(frame, seg, entry_first, p.echo)
+                if not seen:
+                    return (f"the {seg.length_mm:.0f} mm line's echo stands out of the tissue "
+                            f"in {100 * share:.0f}% of its sections (needs "
+                            f"{100 * p.echo.coverage:.0f}%, and of its entry half)")
             more, far = self._echo_beyond(frame, inner, seg if entry_first else seg.reversed())
             if more > 0 and far - more <= p.edge_margin_mm + p.echo.section_mm:
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's echo "

@@ -266,6 +266,25 @@ def test_where_a_line_ends_decides_whether_it_is_a_needle(p0, p1, tracked, reaso
         assert reason in est.reason
 
 
+@pytest.mark.parametrize("echo_to_edge", [False, True])
+def test_a_learned_segment_whose_echo_goes_on_to_the_edge_shows_no_tip(echo_to_edge):
+    """A learned map may mark only part of a bright interface (its probability fades along
+    the line): where the image's echo goes on past the marked segment's end to the edge of
+    the view, the segment shows no tip; where the echo ends with the segment, it is a needle."""
+    import cv2
+
+    h, w = 200, 200
+    image = np.random.default_rng(7).integers(40, 120, (h, w)).astype(np.uint8)
+    end = (199, 18) if echo_to_edge else (110, 95)  # on the same line, or where it ends
+    cv2.line(image, (190, 0), (end[1], end[0]), 230, 2)
+    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
+    tr = LineTracker(features=_MapSource(_line_map(h, w, (0, 190), (110, 95), width=3)))
+    est = tr.update(Frame(image=image, grid=g, t=0.0))
+    assert (est.status == Status.TRACKING) != echo_to_edge, est.reason
+    if echo_to_edge:
+        assert "echo goes on past its end to the edge" in est.reason
+
+
 def test_a_black_vessel_inside_the_image_is_no_edge_of_the_view():
     """An anechoic (all-zero) disc inside the image is tissue, not a capture margin: a line
     that ends beside it still floats in the tissue; a black margin at the frame's border is
