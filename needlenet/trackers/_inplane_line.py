@@ -13,16 +13,16 @@ constant-velocity Kalman filter on the tip's (x, z) smooths it between frames. A
 runs across the imaged region from edge to edge shows no tip (a bright tissue interface, or a
 needle whose tip has left the view, or the edge of a capture margin or sector mask) and is not
 taken for one; nor is a segment whose deeper end, where a needle's tip would be, lies at that
-edge (the tip is out of view), nor one whose echo in the image goes on past its end to that
-edge (a shaft map may mark only part of an interface). A needle comes in through the skin or
-the side of the view and goes in along its axis, so a segment floating in the tissue (its
-entry end away from the edge of the view) is never taken for a new needle, and once a needle
-has been tracked it is taken only as the continuation of the needle seen on the frame before:
-on its axis, and ending where its tip is tracked (the same needle, partly out of the plane).
-The edge of the view is the edge of the frame, of a black capture margin or of a sector mask;
-a black vessel inside the image is tissue. One needle is tracked: a needle-like line seen
-beside it while it advanced is tissue, and is not taken for the needle when the needle leaves
-the plane (:mod:`._inplane_still`).
+edge (the tip is out of view), nor, as a new needle, one whose echo in the image goes on past
+its end to that edge (a shaft map may mark only part of an interface). A needle comes in
+through the skin or the side of the view and goes in along its axis, so a segment floating in
+the tissue (its entry end away from the edge of the view) is never taken for a new needle, and
+once a needle has been tracked it is taken only as the continuation of the needle seen on the
+frame before: on its axis, and ending where its tip is tracked (the same needle, partly out of
+the plane). The edge of the view is the edge of the frame, of a black capture margin or of a
+sector mask; a black vessel inside the image is tissue. One needle is tracked: a needle-like
+line seen beside it while it advanced is tissue, and is not taken for the needle when the
+needle leaves the plane (:mod:`._inplane_still`).
 
 Which end is the tip. A needle goes in from the skin (the top of the image) or from beyond a
 side edge and goes deeper as it advances, so of a segment that descends by more than
@@ -184,7 +184,8 @@ class LineTracker(Tracker):
           outwards along the line): that is an interface, a mask's edge, or a needle whose
           tip is out of view; nor may its deeper end, where a needle's tip would be, lie
           there; nor may its echo go on past its end to that edge (a learned map may mark
-          only part of an interface), and with classical features it must show along the
+          only part of an interface; a learned segment on the axis of the needle tracked on
+          the frame before is not read), and with classical features it must show along the
           line; it must not lie on a line seen standing still beside the needle; and a
           segment floating in the tissue is taken only as the continuation of the needle
           seen on the frame before (see the module's doc);
@@ -269,6 +270,8 @@ class LineTracker(Tracker):
                     return (f"the {seg.length_mm:.0f} mm line's echo stands out of the tissue "
                             f"in {100 * share:.0f}% of its sections (needs "
                             f"{100 * p.echo.coverage:.0f}%, and of its entry half)")
+            elif self._continues_axis(seg):
+                return ""  # the needle tracked on the frame before goes on (see _continues_axis)
             more, far = self._echo_beyond(frame, inner, seg if entry_first else seg.reversed())
             if more > 0 and far - more <= p.edge_margin_mm + p.echo.section_mm:
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's echo "
@@ -287,6 +290,16 @@ class LineTracker(Tracker):
             return int(enters(seg))
 
         return check, priority, looks
+
+    def _continues_axis(self, seg: NeedleLine) -> bool:
+        """Whether a segment lies on the axis of the needle tracked on the frame before. A
+        learned segment whose echo goes on past its end to the edge of the view is refused
+        as a new needle (a piece of an interface the map marks only in part), not as the
+        needle already tracked: past a needle's tip plane-wave imaging leaves a streak along
+        its line, which a strong needle's echo can carry to the edge of the view."""
+        p = self.params
+        return self._dir is not None and not self._misses and self._axis is not None and \
+            on_line(seg, *self._axis, p.track_window_deg, p.track_window_mm)
 
     def _continues_track(self, seg: NeedleLine) -> bool:
         """Whether a segment continues the needle seen on the frame before: its end away from

@@ -285,6 +285,26 @@ def test_a_learned_segment_whose_echo_goes_on_to_the_edge_shows_no_tip(echo_to_e
         assert "echo goes on past its end to the edge" in est.reason
 
 
+def test_a_tracked_needle_whose_echo_streaks_on_to_the_edge_is_kept():
+    """The veto on an echo that goes on to the edge refuses a new needle, not the needle
+    tracked on the frame before (plane-wave imaging streaks a strong needle's echo on along
+    its line past the tip)."""
+    import cv2
+
+    h, w = 200, 200
+    rng = np.random.default_rng(8)
+    g = synth.Grid((h, w), (0.2, 0.2), (0.0, 0.0))
+    shaft = _line_map(h, w, (0, 190), (110, 95), width=3)
+    tr = LineTracker(features=_MapSource(shaft))
+    for t, end in ((0.0, (110, 95)), (0.05, (199, 18))):  # the echo ends, then streaks on
+        image = rng.integers(40, 120, (h, w)).astype(np.uint8)
+        cv2.line(image, (190, 0), (end[1], end[0]), 230, 2)
+        est = tr.update(Frame(image=image, grid=g, t=t))
+        assert est.status == Status.TRACKING, est.reason
+    fresh = LineTracker(features=_MapSource(shaft)).update(Frame(image=image, grid=g, t=0.1))
+    assert fresh.status != Status.TRACKING and "goes on past its end" in fresh.reason
+
+
 def test_a_black_vessel_inside_the_image_is_no_edge_of_the_view():
     """An anechoic (all-zero) disc inside the image is tissue, not a capture margin: a line
     that ends beside it still floats in the tissue; a black margin at the frame's border is
