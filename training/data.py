@@ -79,9 +79,9 @@ class DataConfig:
     # right at 15-70 degrees, no display masks, tip targets at the labelled tip: the worlds the
     # shipped in-plane model was trained on)
     inplane_worlds: str = "wide"
-    # in-plane only: held-out worlds over which the speckle size and grey levels recorded in
-    # the model's metadata are measured (training/references.py)
-    reference_worlds: int = 200
+    # in-plane only: held-out worlds over which the median speckle size, recorded in the
+    # model's metadata, is measured (training/speckle.py)
+    speckle_worlds: int = 200
 
     def __post_init__(self):
         if self.inplane_worlds not in INPLANE_WORLDS:
@@ -95,7 +95,7 @@ class DataConfig:
         if self.crop < 2 * INPUT_MULTIPLE:
             raise ValueError(f"crop must be at least {2 * INPUT_MULTIPLE} pixels, got {self.crop}")
         for name in ("batch_size", "frames_per_world", "crops_per_frame", "val_frames",
-                     "shuffle_buffer", "reference_worlds"):
+                     "shuffle_buffer", "speckle_worlds"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.num_workers < 0:

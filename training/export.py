@@ -70,17 +70,15 @@ def export_onnx(net: nn.Module, modality: str, spacing_mm: float, out: str | os.
                 version: str = "0.1.0", extra_metadata: dict | None = None,
                 overwrite: bool = False, seed: int = 0,
                 target_reference: str = "centerline", normalization: str = "fixed",
-                speckle_cell_mm: float | None = None,
-                grey_reference: list[float] | None = None) -> dict:
+                speckle_cell_mm: float | None = None) -> dict:
     """Write ``net`` as ONNX (input ``image``, output ``likelihood``, dynamic spatial axes).
 
     ``normalization``: a key of ``NORMALIZATIONS`` (the model's input intensity scaling).
     ``target_reference`` (metadata): where the maps mark the needle, ``"centerline"`` or
     ``"wall"`` (the wall facing the probe; see ``training.data.WALL_REFERENCED``).
     ``speckle_cell_mm`` (metadata, 2D models): the training worlds' median speckle cell size
-    on the model's grid (``training.references``), to which the runtime matches a recording's
-    grid. ``grey_reference`` (a ``fixed`` normalisation's): the training worlds' median grey
-    and spread, to which the runtime maps a frame's grey levels.
+    on the model's grid (``training.speckle``), to which the runtime matches a recording's
+    grid.
 
     onnxruntime's output is compared with torch's on random inputs of several (odd-padded)
     sizes; if the largest absolute difference exceeds 1e-4, :class:`ExportError` is raised
@@ -114,9 +112,7 @@ def export_onnx(net: nn.Module, modality: str, spacing_mm: float, out: str | os.
         meta = {
             "needlenet_version": version, "modality": modality,
             "spacing_mm": json.dumps([spacing_mm] * dims),
-            "normalization": json.dumps({**NORMALIZATIONS[normalization], **(
-                {"grey_reference": [float(v) for v in grey_reference]}
-                if grey_reference is not None and normalization == "fixed" else {})}),
+            "normalization": json.dumps(NORMALIZATIONS[normalization]),
             "output_stride": str(OUTPUT_STRIDE), "input_multiple": str(INPUT_MULTIPLE),
             "channels": json.dumps(["shaft", "tip"]),
             "target_reference": target_reference,

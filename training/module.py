@@ -59,8 +59,7 @@ class LikelihoodModule(L.LightningModule):
                  max_steps: int = 1000, weight_decay: float = 1e-4,
                  target_reference: str = "centerline", normalization: str = "fixed",
                  pos_weight: tuple[float, float] = (20.0, 50.0),
-                 speckle_cell_mm: float | None = None,
-                 grey_reference: list[float] | None = None):
+                 speckle_cell_mm: float | None = None):
         super().__init__()
         self.save_hyperparameters(ignore=["net"])
         self.net = net

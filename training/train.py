@@ -21,7 +21,7 @@ from needlenet.settings import convert_setting
 from .data import DataConfig, SynthDataModule, target_reference
 from .module import LikelihoodModule
 from .networks import build_network, count_parameters
-from .references import REFERENCE_MODALITIES, world_references
+from .speckle import SPECKLE_MODALITIES, speckle_reference
 
 __all__ = ["TrainConfig", "DEFAULTS", "ACCELERATORS", "config_for", "settings_for",
            "train"]
@@ -152,15 +152,13 @@ def train(config: TrainConfig) -> dict:
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     net = build_network(config.modality, config.width)
-    refs = world_references(config.data, config.data.reference_worlds) \
-        if config.modality in REFERENCE_MODALITIES else {}
+    speckle = speckle_reference(config.data, config.data.speckle_worlds) \
+        if config.modality in SPECKLE_MODALITIES else None
     module = LikelihoodModule(net, config.modality, config.data.spacing_mm, lr=config.lr,
                               max_steps=config.steps,
                               target_reference=target_reference(config.modality),
                               normalization=config.data.normalization,
-                              pos_weight=tuple(config.pos_weight),
-                              speckle_cell_mm=refs.get("speckle_cell_mm"),
-                              grey_reference=refs.get("grey_reference"))
+                              pos_weight=tuple(config.pos_weight), speckle_cell_mm=speckle)
     dm = SynthDataModule(config.data)
     ckpt = ModelCheckpoint(dirpath=out, filename="last", save_last=False, every_n_train_steps=
                            max(config.val_every, 1), save_top_k=1)

@@ -91,8 +91,7 @@ def run_train(args) -> int:
                                            if args.param else {})},
                         target_reference=hp.get("target_reference", "centerline"),
                         normalization=hp.get("normalization", "fixed"),
-                        speckle_cell_mm=hp.get("speckle_cell_mm"),
-                        grey_reference=hp.get("grey_reference"))
+                        speckle_cell_mm=hp.get("speckle_cell_mm"))
         print(f"wrote {export} ({r['bytes']} bytes, onnxruntime vs torch {r['max_abs_diff']:.1e})")
     return 0
 
@@ -143,8 +142,7 @@ def run_export(args) -> int:
         r = export_onnx(net, hp["modality"], hp["spacing_mm"], out, overwrite=args.overwrite,
                         target_reference=hp.get("target_reference", "centerline"),
                         normalization=hp.get("normalization", "fixed"),
-                        speckle_cell_mm=hp.get("speckle_cell_mm"),
-                        grey_reference=hp.get("grey_reference"))
+                        speckle_cell_mm=hp.get("speckle_cell_mm"))
     except (ValueError, ExportError) as exc:
         raise CLIError(f"export: {exc}") from None
     print(f"wrote {out} ({r['bytes']} bytes, opset {r['opset']}, IR {r['ir_version']}, "

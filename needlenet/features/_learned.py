@@ -57,17 +57,8 @@ MAX_PARTS = 16
 
 
 def _check_normalization_extras(norm: dict, path: Path) -> None:
-    """The optional entries of a normalisation: a ``fixed`` one's ``grey_reference`` (a
-    median grey in 1-254 and a positive spread); a ``robust`` one's ``clip`` (two finite
-    numbers, low then high) and ``zero_value`` (a finite number)."""
-    ref = norm.get("grey_reference")
-    if ref is not None:
-        ok = isinstance(ref, list) and len(ref) == 2 and all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-            for v in ref) and 1 <= ref[0] <= 254 and 0 < ref[1] <= 255
-        if not ok:
-            raise ModelError(f"model {path}: metadata normalization grey_reference "
-                             f"{ref!r:.40} must be [median grey 1-254, spread 0-255]")
+    """The optional entries of a ``robust`` normalisation: ``clip`` two finite numbers, low
+    then high, and ``zero_value`` a finite number."""
     clip = norm.get("clip", NORMALIZATIONS["robust"]["clip"])
     zero = norm.get("zero_value", NORMALIZATIONS["robust"]["zero_value"])
     ok = isinstance(clip, list) and len(clip) == 2 and all(

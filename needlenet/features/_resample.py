@@ -14,11 +14,7 @@ __all__ = ["model_shape", "model_grid", "to_model_grid", "to_frame_grid", "pad_t
            "axis_weights", "resize_weights", "apply_weights"]
 
 # Intensity normalisations a model can be trained with (stored in its ONNX metadata):
-# "fixed": (I / 255 - 0.35) / 0.25, the same for every image; with a "grey_reference"
-#   (median, spread) the frame's grey levels are first mapped affinely so that the median and
-#   1.4826 MAD of its non-zero pixels become those (the training worlds' typical values; zero
-#   pixels stay zero, the result is clipped to 0-255): the input of a model trained on fixed
-#   grey levels then no longer moves with the scanner's gain and dynamic range (see "robust");
+# "fixed": (I / 255 - 0.35) / 0.25, the same for every image;
 # "median": I / level - 1 with level the median of the frame's non-zero pixels: invariant to
 #   the scanner's gain and to the tissue's grey level, so a needle at contrast ratio CR
 #   (Zhao eq. 9) reads CR - 1 whatever the preset.
@@ -233,7 +229,7 @@ def frame_statistics(image: np.ndarray, norm: dict):
     mode = norm.get("mode", "fixed")
     if mode == "median":
         return image_level(image)
-    if mode == "robust" or norm.get("grey_reference") is not None:
+    if mode == "robust":
         return image_statistics(image)
     return None
 
@@ -245,12 +241,6 @@ def normalize(x: np.ndarray, norm: dict, level: float | None = None) -> np.ndarr
     mode = norm.get("mode", "fixed")
     mean, std = np.float32(norm["mean"]), np.float32(norm["std"])
     if mode == "fixed":
-        ref = norm.get("grey_reference")
-        if ref is not None:
-            med, spread = image_statistics(x) if level is None else level
-            gain = np.float32(float(ref[1]) / spread)
-            y = np.clip(np.float32(ref[0]) + (x - np.float32(med)) * gain, 0, 255)
-            x = np.where(x == 0, np.float32(0), y).astype(np.float32)
         return (x * np.float32(norm["scale"]) - mean) / std
     if mode == "median":
         if level is None:

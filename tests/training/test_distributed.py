@@ -34,7 +34,7 @@ def test_two_cpu_processes_train_and_rank_zero_alone_reports(tmp_path):
            "--devices", "2", "--workers", "0", "--out", str(out), "--export", str(onnx_path),
            "--param", "crop=32", "--param", "frames_per_world=2", "--param", "val_frames=2",
            "--param", "batch_size=2", "--param", "shuffle_buffer=4", "--param", "val_every=2",
-           "--param", "reference_worlds=2"]
+           "--param", "speckle_worlds=2"]
     env = {**os.environ, "PYTHONWARNINGS": "ignore"}
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env)
     assert r.returncode == 0, r.stderr[-2000:]
