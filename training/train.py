@@ -66,15 +66,16 @@ class TrainConfig:
 
 
 # The shipped models: spacing and crop per modality (commands in README). The shipped in-plane
-# model was trained on the "narrow" worlds with the "fixed" normalisation; the "wide" worlds
-# with the "robust" normalisation (steps=1800) are the candidate that replaces it once it
-# tracks better on images synth did not make (needlenet bench external; docs/notes/inplane.md).
+# model was trained on the "narrow" worlds with the "robust" normalisation (its input does not
+# move with the scanner's gain or dynamic range); the "wide" worlds did worse on images synth
+# did not make (needlenet bench external; docs/notes/inplane.md).
 DEFAULTS = {
     "inplane": TrainConfig(modality="inplane", steps=900, out_dir="runs/inplane",
                            data=DataConfig(modality="inplane", spacing_mm=0.2, crop=96,
                                            batch_size=16, frames_per_world=24,
                                            crops_per_frame=2, shuffle_buffer=192,
-                                           inplane_worlds="narrow")),
+                                           inplane_worlds="narrow",
+                                           normalization="robust")),
     "axial": TrainConfig(modality="axial", steps=1200, out_dir="runs/axial",
                          data=DataConfig(modality="axial", spacing_mm=0.3, crop=64,
                                          batch_size=16, frames_per_world=40,

@@ -328,15 +328,15 @@ def test_randomised_inplane_worlds_are_deterministic_and_wide():
 
 
 def test_the_inplane_recipe_is_the_shipped_models():
-    # the shipped in-plane model was trained on the narrow worlds with the fixed normalisation:
-    # the recipe that 'needlenet train inplane' runs must say the same
+    # the shipped in-plane model was trained on the narrow worlds with the robust
+    # normalisation: the recipe that 'needlenet train inplane' runs must say the same
     from needlenet.features import learned_features
     from training.data import DataConfig, randomize
     from training.train import DEFAULTS
 
     data = DEFAULTS["inplane"].data
     assert data.inplane_worlds == "narrow"
-    assert learned_features("inplane").normalization["mode"] == data.normalization
+    assert learned_features("inplane").normalization["mode"] == data.normalization == "robust"
     cfg = DataConfig(inplane_worlds="narrow")
     draws = [randomize("inplane", np.random.default_rng(s), cfg)[1] for s in range(100)]
     angles = np.array([d["angle_deg"] for d in draws])
