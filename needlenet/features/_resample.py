@@ -207,17 +207,43 @@ def image_level(image: np.ndarray, max_samples: int = 65536) -> float:
     return float(np.median(nz)) if nz.size else 1.0
 
 
+def _histogram_median(counts: np.ndarray) -> float:
+    """The median (the mean of the two middle values for an even count, as ``np.median``) of
+    the integers 0, 1, ... taken ``counts`` times each."""
+    c = np.cumsum(counts)
+    n = int(c[-1])
+    lo = int(np.searchsorted(c, (n - 1) // 2 + 1))
+    hi = int(np.searchsorted(c, n // 2 + 1))
+    return 0.5 * (lo + hi)
+
+
+def _integer_median_mad(values: np.ndarray) -> tuple[float, float]:
+    """``np.median`` of unsigned integers and of their absolute deviations from it, from
+    histograms (a frame's statistics in 0.1 ms instead of 1 ms)."""
+    counts = np.bincount(values.ravel())
+    med = _histogram_median(counts)
+    # deviations |v - med| in half-units, integers whether the median is whole or not
+    twice = np.abs(2 * np.arange(len(counts)) - int(round(2 * med)))
+    return med, 0.5 * _histogram_median(np.bincount(twice, weights=counts))
+
+
 def image_statistics(image: np.ndarray, max_samples: int = 65536) -> tuple[float, float]:
     """(median, 1.4826 MAD) of the non-zero pixels of a regular subsample of ``image``: the
     robust centre and spread of the ``"robust"`` normalisation. The spread falls back to the
     standard deviation where the MAD is 0, and to 1 where that is 0 too (one grey value);
     an all-zero image gives (0, 1)."""
-    nz = _nonzero_subsample(image, max_samples).astype(np.float64)
+    nz = _nonzero_subsample(image, max_samples)
     if nz.size == 0:
         return 0.0, 1.0
-    med = float(np.median(nz))
-    spread = MAD_TO_SIGMA * float(np.median(np.abs(nz - med)))
+    if nz.dtype in (np.uint8, np.uint16):  # grey levels: the same numbers from histograms
+        med, mad = _integer_median_mad(nz)
+    else:
+        nz = nz.astype(np.float64)
+        med = float(np.median(nz))
+        mad = float(np.median(np.abs(nz - med)))
+    spread = MAD_TO_SIGMA * mad
     if not spread > 0:
+        nz = nz.astype(np.float64)
         spread = float(nz.std())
     return med, (spread if spread > 0 else 1.0)
 

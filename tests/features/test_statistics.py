@@ -1,0 +1,29 @@
+"""The robust normalisation's frame statistics: median and MAD from histograms for grey-level
+frames, the same numbers as numpy's median on the same samples."""
+
+import numpy as np
+import pytest
+
+from needlenet.features._resample import _integer_median_mad, image_statistics
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 1000, 65536])
+@pytest.mark.parametrize("dtype,high", [(np.uint8, 256), (np.uint16, 4096)])
+def test_histogram_median_and_mad_agree_with_numpy(n, dtype, high):
+    v = np.random.default_rng(n).integers(0, high, n).astype(dtype)
+    med, mad = _integer_median_mad(v)
+    f = v.astype(np.float64)
+    assert med == np.median(f)
+    assert mad == np.median(np.abs(f - np.median(f)))
+
+
+def test_a_grey_frame_and_its_float_copy_give_the_same_statistics():
+    rng = np.random.default_rng(4)
+    frame = rng.integers(0, 256, (200, 240)).astype(np.uint8)  # under the subsample's cap
+    frame[:, :40] = 0  # a black margin: not counted
+    assert image_statistics(frame) == image_statistics(frame.astype(np.float32))
+    inside = frame.astype(np.float64)
+    inside = inside[inside > 0]
+    med, spread = image_statistics(frame)
+    assert med == np.median(inside)
+    assert spread == pytest.approx(1.4826 * np.median(np.abs(inside - med)))
