@@ -17,7 +17,7 @@ from needlenet.features import NORMALIZATIONS
 
 from .networks import INPUT_MULTIPLE, OUTPUT_STRIDE, build_network
 
-__all__ = ["export_onnx", "load_checkpoint", "ExportError", "OPSET", "IR_VERSION"]
+__all__ = ["export_onnx", "load_checkpoint", "set_metadata", "ExportError", "OPSET", "IR_VERSION"]
 
 OPSET = 17  # loaded by onnxruntime >= 1.14
 IR_VERSION = 8  # ONNX IR version matching opset 17; onnxruntime >= 1.14 loads it
@@ -37,6 +37,14 @@ class _WithSigmoid(nn.Module):
 
     def forward(self, image):
         return torch.sigmoid(self.net(image))
+
+
+def set_metadata(model, meta: dict) -> None:
+    """Replace an ONNX model's metadata by ``meta`` (string keys and values)."""
+    del model.metadata_props[:]
+    for k, v in meta.items():
+        p = model.metadata_props.add()
+        p.key, p.value = k, v
 
 
 def load_checkpoint(path: str | os.PathLike) -> tuple[nn.Module, dict]:
@@ -120,10 +128,7 @@ def export_onnx(net: nn.Module, modality: str, spacing_mm: float, out: str | os.
                if speckle_cell_mm is not None else {}),
         }
         meta.update({k: str(v) for k, v in (extra_metadata or {}).items()})
-        del model.metadata_props[:]
-        for k, v in meta.items():
-            p = model.metadata_props.add()
-            p.key, p.value = k, v
+        set_metadata(model, meta)
         onnx.checker.check_model(model)
         onnx.save(model, tmp)
         net.eval()

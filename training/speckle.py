@@ -25,6 +25,7 @@ import synth
 from needlenet.features._speckle import cell_size, speckle_widths
 
 from .data import DataConfig, randomize
+from .export import set_metadata
 
 __all__ = ["SPECKLE_MODALITIES", "speckle_reference", "write_reference"]
 
@@ -64,10 +65,7 @@ def write_reference(model: str | os.PathLike, reference: float) -> None:
     m = onnx.load(path)
     props = {p.key: p.value for p in m.metadata_props}
     props["speckle_cell_mm"] = json.dumps(float(reference))
-    del m.metadata_props[:]
-    for k, v in props.items():
-        p = m.metadata_props.add()
-        p.key, p.value = k, v
+    set_metadata(m, props)
     tmp = path.with_name(path.name + ".tmp")
     onnx.save(m, tmp)
     os.replace(tmp, path)
