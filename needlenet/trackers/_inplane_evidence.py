@@ -32,10 +32,11 @@ import numpy as np
 
 from ..features import TipFeatures
 
-__all__ = ["echo_sections", "echo_shown", "classical_echo_seen", "learned_level_reached"]
+__all__ = ["echo_sections", "echo_shown", "section_means", "classical_echo_seen",
+           "learned_level_reached"]
 
 
-def _section_means(values: np.ndarray, n: int) -> np.ndarray:
+def section_means(values: np.ndarray, n: int) -> np.ndarray:
     """Means of consecutive runs of ``n`` samples along the last axis (a shorter rest dropped
     unless it is all there is)."""
     m = values.shape[-1] // n
@@ -52,12 +53,12 @@ def echo_sections(feats: TipFeatures, x_from_mm: float, x_to_mm: float,
     if feats.null_difference is None:
         return np.zeros(0)
     n = max(int(section_samples), 1)
-    null = _section_means(feats.null_difference, n)
+    null = section_means(feats.null_difference, n)
     sd = 1.4826 * float(np.median(np.abs(null - np.median(null))))
     sel = (feats.x_mm >= x_from_mm) & (feats.x_mm <= x_to_mm)
     if not sel.any():
         return np.zeros(0)
-    diff = _section_means(feats.line[sel] - feats.background[sel], n)
+    diff = section_means(feats.line[sel] - feats.background[sel], n)
     return diff / max(sd, 1e-9)
 
 
@@ -73,12 +74,16 @@ def classical_echo_seen(feats: TipFeatures, x_from_mm: float, x_to_mm: float,
 
 def echo_shown(z: np.ndarray, z_min: float, coverage: float) -> tuple[bool, float]:
     """Whether sections of z ``z`` show the echo (at least ``coverage`` of them at ``z_min``,
-    over all and over the first half), and the share that do (0 when there are none)."""
-    if not z.size:
+    over all and over the first half), and the share that do (0 when there are none). NaN
+    sections are no evidence either way: left out of both shares (all NaN: not shown)."""
+    counted = np.isfinite(z)
+    if not counted.any():
         return False, 0.0
     shows = z >= z_min
-    share = float(np.mean(shows))
-    entry_half = float(np.mean(shows[:max(1, (len(shows) + 1) // 2)]))
+    share = float(shows[counted].mean())
+    first = slice(0, max(1, (len(z) + 1) // 2))
+    entry = counted[first]
+    entry_half = float(shows[first][entry].mean()) if entry.any() else 0.0
     return bool(share >= coverage and entry_half >= coverage), share
 
 

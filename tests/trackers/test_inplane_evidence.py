@@ -14,6 +14,7 @@ from needlenet.trackers._inplane import InplaneParams, InplaneTracker
 from needlenet.trackers._inplane_evidence import (
     classical_echo_seen,
     echo_sections,
+    echo_shown,
     learned_level_reached,
 )
 
@@ -61,6 +62,15 @@ def test_no_samples_or_no_null_is_not_seen():
     probability = dataclasses.replace(f, line=np.full(500, 0.6))
     assert learned_level_reached(probability, 0.0, 30.0, 0.5)
     assert not learned_level_reached(probability, 0.0, 30.0, 0.7)
+
+
+def test_sections_without_evidence_are_left_out():
+    """NaN sections (the line echo's premise, tissue above, fails there) count neither way."""
+    z = np.array([np.nan, np.nan, 3.0, 3.0, 0.0, 3.0])
+    assert echo_shown(z, 2.0, 0.5) == (True, 0.75)  # entry half: its one counted section
+    assert echo_shown(np.array([np.nan, 0.0, 3.0, 3.0]), 2.0, 0.5) == (False, 2 / 3)
+    assert echo_shown(np.full(4, np.nan), 2.0, 0.5) == (False, 0.0)
+    assert echo_shown(np.array([3.0, 0.0, 3.0, 3.0]), 2.0, 0.5) == (True, 0.75)
 
 
 def test_settings_are_checked():

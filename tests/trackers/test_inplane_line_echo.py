@@ -7,7 +7,12 @@ import pytest
 import synth
 from needlenet.backends import NeedleLine
 from needlenet.features import Frame
-from needlenet.trackers._inplane_line_echo import EchoTestParams, echo_along, echo_beyond
+from needlenet.trackers._inplane_line_echo import (
+    EchoTestParams,
+    echo_along,
+    echo_beyond,
+    tissue_level,
+)
 
 SPACING = 0.1
 
@@ -108,6 +113,55 @@ def test_speckle_past_a_line_rarely_reads_as_echo():
     assert hits <= 2, f"{hits} of 200"
 
 
+def _lumen(image, centre_mm, radius_mm):
+    """An anechoic disc (a vessel across the plane): no scatterers, the display's floor."""
+    z, x = np.mgrid[:image.shape[0], :image.shape[1]] * SPACING
+    image[(x - centre_mm[0]) ** 2 + (z - centre_mm[1]) ** 2 < radius_mm**2] = 3
+    return image
+
+
+FLAT_A, FLAT_B = (3.0, 12.0), (9.0, 12.6)  # 6 mm at 6 degrees, just under a vessel
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_tissue_under_a_vessel_is_no_echo(seed):
+    """The tissue just below an anechoic lumen stands out of the band above it (the lumen)
+    as a needle's echo stands out of tissue; with the lumen above every section it is no
+    evidence (without that rule the step read as echo in every section)."""
+    im = _lumen(_speckle(seed), (6.0, 9.0), 3.0)
+    seen, share = echo_along(_frame(im), _segment(FLAT_A, FLAT_B), True, EchoTestParams())
+    assert not seen and share == 0.0
+    assert echo_beyond(_frame(im), _segment((0.5, 11.8), (3.0, 12.0)), True, 6.0,
+                       EchoTestParams()) == 0.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_needle_partly_under_a_vessel_still_shows_its_echo(seed):
+    """A needle passing under a vessel: the sections under the lumen are left out, the rest
+    show its echo."""
+    im = _lumen(_draw(_speckle(seed), A, B, 250), (8.0, 8.0), 2.5)
+    seen, share = echo_along(_frame(im), _segment(A, B), True, EchoTestParams())
+    assert seen and share > 0.9
+
+
+def test_tissue_level_follows_depth_not_a_vessel():
+    """The level is the tissue's median grey at each depth: a gain ramp with depth moves it;
+    a vessel 10 mm wide in a 30 mm row lowers it by under half a speckle spread (the median
+    of the rest of the row), far from the two spreads that mark a band anechoic."""
+    ramp = np.linspace(-20.0, 20.0, 300)[:, None]
+    im = np.clip(_speckle(7) + ramp, 0, 255)
+    level, spread = tissue_level(_frame(im), 5.0)
+    rows = np.median(im.astype(np.uint8), axis=1)
+    assert np.max(np.abs(level[60:240] - rows[60:240])) < 0.2 * spread  # rows: noisier
+    assert level[240] - level[60] == pytest.approx(40 * 180 / 299, abs=0.1 * spread)
+    assert 15 < spread < 30  # log-compressed speckle at 40 grey levels a decade, less clipping
+    vessel = _frame(_lumen(im.copy(), (15.0, 15.0), 5.0))
+    lowered = level - tissue_level(vessel, 5.0)[0]
+    assert 0 < np.max(lowered) < 0.5 * spread
+
+
 def test_settings_out_of_range_are_refused():
     with pytest.raises(ValueError, match="echo test"):
         EchoTestParams(band_mm=(3.0, 2.0))
+    with pytest.raises(ValueError, match="echo test"):
+        EchoTestParams(anechoic_sd=0.0)
