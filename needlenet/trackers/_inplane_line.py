@@ -59,6 +59,7 @@ from ..backends import (
 from ..features import FeatureSource, Frame, line_contrast
 from ._base import NeedleEstimate, Status, Tracker
 from ._details import LineDetails
+from ._inplane_echo_end import echo_end
 from ._inplane_geometry import (
     AROUND,
     distance_to_edge,
@@ -346,7 +347,7 @@ class LineTracker(Tracker):
         if new_line and self._dir is not None:
             self._forget()  # another line than the one tracked: start anew
         seg = self._orient(seg, frame, inner)
-        tip_mm, used_tip_map = self._tip(seg, lik.tip, map_grid,
+        tip_mm, used_tip_map = self._tip(frame, seg, lik.tip, map_grid,
                                          self._reach_mm(seg, wm, frame, inner))
         self._misses = 0
         measured = tip_mm.copy()
@@ -478,12 +479,14 @@ class LineTracker(Tracker):
             return 0.0
         return float(np.linalg.norm(longer.end_mm - seg.end_mm))
 
-    def _tip(self, seg: NeedleLine, tip_map, grid, reach_mm: float = 0.0
+    def _tip(self, frame: Frame, seg: NeedleLine, tip_map, grid, reach_mm: float = 0.0
              ) -> tuple[np.ndarray, bool]:
         """The tip (x, z) on the centre line: the segment's far end, moved to the tip map's
         maximum when the map is confident there, searched from ``tip_window_mm`` behind the
         end to its window ahead of the end's weaker continuation (``reach_mm`` long): weaker
-        shaft evidence moves the tip only where the tip map confirms it."""
+        shaft evidence moves the tip only where the tip map confirms it. A learned tip that
+        lies past where the needle's echo ends in the image (:func:`echo_end`) is moved back
+        there, and to the tip map's maximum within ``tip_window_mm`` of it."""
         p = self.params
         normal = np.array([-seg.direction[1], seg.direction[0]])
         if normal[1] < 0:
@@ -491,18 +494,32 @@ class LineTracker(Tracker):
         end = seg.end_mm
         used = False
         if tip_map is not None:
-            back, ahead = p.tip_window_mm
-            step = p.search.work_spacing_mm / 2
-            s = np.arange(-back, reach_mm + ahead + 1e-9, step)
-            pts = end[None] + s[:, None] * seg.direction[None]
-            vals = sample_grid(np.asarray(tip_map, np.float32), grid, pts)
-            k = int(np.argmax(vals))
-            if vals[k] >= p.tip_map_min:
-                end = pts[k]
-                used = True
+            end, used = self._tip_map_max(tip_map, grid, end, seg.direction, reach_mm)
         else:  # the classical echo itself goes on this far (see _reach_mm)
             end = end + reach_mm * seg.direction
+        if self.features.kind == "learned":
+            along = echo_end(frame, seg.start_mm, seg.direction,
+                             float((end - seg.start_mm) @ seg.direction), p.echo_end)
+            if along is not None:
+                end, used = seg.start_mm + along * seg.direction, False
+                if tip_map is not None:
+                    end, used = self._tip_map_max(tip_map, grid, end, seg.direction, 0.0, end)
         return end + self._offset_mm() * normal, used
+
+    def _tip_map_max(self, tip_map, grid, end: np.ndarray, d: np.ndarray, reach_mm: float,
+                     default: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+        """The tip map's maximum on the line from ``tip_window_mm`` behind ``end`` to its
+        window ahead of ``end`` moved on by ``reach_mm``, where it reaches ``tip_map_min``;
+        else (``default``, or ``end``; False)."""
+        p = self.params
+        back, ahead = p.tip_window_mm
+        s = np.arange(-back, reach_mm + ahead + 1e-9, p.search.work_spacing_mm / 2)
+        pts = end[None] + s[:, None] * d[None]
+        vals = sample_grid(np.asarray(tip_map, np.float32), grid, pts)
+        k = int(np.argmax(vals))
+        if vals[k] >= p.tip_map_min:
+            return pts[k], True
+        return (end if default is None else default), False
 
     def _filter(self, z: np.ndarray) -> tuple[bool | None, bool]:
         """Update the filter with tip measurement ``z``: whether the gate accepted it (None

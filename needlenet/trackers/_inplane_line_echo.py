@@ -40,7 +40,7 @@ from ..features import (
 )
 from ._inplane_evidence import echo_sections, echo_shown, section_means
 
-__all__ = ["EchoTestParams", "echo_along", "echo_beyond"]
+__all__ = ["EchoTestParams", "echo_along", "echo_beyond", "image_strip", "tissue_level"]
 
 
 @dataclass(frozen=True)
@@ -77,8 +77,8 @@ class EchoTestParams:
             raise ValueError(f"echo test settings out of range: {self}")
 
 
-def _strip(image: np.ndarray, frame: Frame, start: np.ndarray, d: np.ndarray,
-           up: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
+def image_strip(image: np.ndarray, frame: Frame, start: np.ndarray, d: np.ndarray,
+                up: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The image on points start + t d + y up: rows y, columns t."""
     pts = start[None, None] + t[None, :, None] * d[None, None] + y[:, None, None] * up[None, None]
     idx = frame.grid.points_to_index(pts.reshape(-1, 2))
@@ -148,7 +148,7 @@ def _section_z(frame: Frame, start: np.ndarray, d: np.ndarray, length_mm: float,
     line_y = step * np.arange(-k, k + 1)
     band_y = np.arange(p.band_mm[0], p.band_mm[1] + 1e-9, step)
     y = np.concatenate([line_y, band_y, line_y + p.null_up_mm, band_y + p.null_up_mm])
-    s = _strip(image, frame, start, d, up, t, y)
+    s = image_strip(image, frame, start, d, up, t, y)
     a, b = len(line_y), len(band_y)
     null = s[a + b:2 * a + b].mean(0) - s[2 * a + b:].mean(0)
     band = s[a:a + b].mean(0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..backends import LineSearchParams
+from ._inplane_echo_end import EchoEndParams
 from ._inplane_line_echo import EchoTestParams
 from ._inplane_still import StillLineParams
 
@@ -51,14 +52,17 @@ class LineTrackerParams:
     only as the continuation of the needle seen on the frame before (on its axis, within
     ``track_window_deg``/``track_window_mm``, its end inside the tip filter's gate).
     ``echo``: with classical features a line is a needle only where its echo shows along it
-    (:mod:`._inplane_line_echo`). ``still``: lines seen standing still beside the advancing
-    needle are tissue (:mod:`._inplane_still`).
+    (:mod:`._inplane_line_echo`). ``echo_end``: with learned features a tip past where the
+    needle's echo ends in the image is moved back there (:mod:`._inplane_echo_end`).
+    ``still``: lines seen standing still beside the advancing needle are tissue
+    (:mod:`._inplane_still`).
     ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
     not read (the mask's step is no echo; the shipped in-plane model marks it up to 1.5 mm
     in, measured on needle-free synth frames with sector masks and margins)."""
 
     search: LineSearchParams = field(default_factory=LineSearchParams)
     echo: EchoTestParams = field(default_factory=EchoTestParams)
+    echo_end: EchoEndParams = field(default_factory=EchoEndParams)
     still: StillLineParams = field(default_factory=StillLineParams)
     min_length_mm: float = 5.0
     learned_level: float = 0.5

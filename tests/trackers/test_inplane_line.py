@@ -295,6 +295,21 @@ def test_a_learned_segment_whose_echo_goes_on_to_the_edge_shows_no_tip(echo_to_e
         assert "echo goes on past its end to the edge" in est.reason
 
 
+def test_a_learned_tip_past_the_end_of_the_echo_is_put_where_the_echo_ends():
+    """A map that marks the needle's line 5 mm past the end of its echo (the streak of
+    unfocused imaging, which a map takes for shaft): the tip is where the echo ends."""
+    import cv2
+
+    h, w = 200, 200
+    image = np.random.default_rng(9).integers(40, 120, (h, w)).astype(np.uint8)
+    cv2.line(image, (190, 0), (95, 110), 230, 2)  # the echo ends at row 110, column 95
+    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
+    shaft = _line_map(h, w, (0, 190), (129, 79), width=3)
+    est = LineTracker(features=_MapSource(shaft)).update(Frame(image=image, grid=g, t=0.0))
+    assert est.status == Status.TRACKING, est.reason
+    assert np.linalg.norm(est.tip_mm - np.array([95, 110]) * 0.2) < 0.5
+
+
 def test_a_tracked_needle_whose_echo_streaks_on_to_the_edge_is_kept():
     """The veto on an echo that goes on to the edge refuses a new needle, not the needle
     tracked on the frame before (plane-wave imaging streaks a strong needle's echo on along
