@@ -192,7 +192,10 @@ def echo_beyond(frame: Frame, seg: NeedleLine, entry_first: bool, reach_mm: floa
     measured along segment and continuation together) are scanned for where a run of echo
     ends: k sections go on when the sum of their z over the root of k, the generalised
     likelihood ratio of a mean shift over the first k, is largest there and reaches
-    ``params.beyond_z``."""
+    ``params.beyond_z``. Sections that are no evidence (their band above anechoic: a lumen,
+    or the black outside a sector) do not show where the echo ends: a run followed only by
+    such sections to the end of the read, or a read of such sections alone, is taken to go
+    on to its end (no end of the echo is seen)."""
     step = float(min(frame.grid.spacing_mm))
     if reach_mm < params.section_mm:
         return 0.0
@@ -201,10 +204,15 @@ def echo_beyond(frame: Frame, seg: NeedleLine, entry_first: bool, reach_mm: floa
     z = _section_z(frame, start, d, seg.length_mm + reach_mm, seg.length_mm, params)
     if not z.size:
         return 0.0
+    read = np.flatnonzero(np.isfinite(z))
+    if not read.size:
+        return float(reach_mm)  # nothing past the end can be read: no end seen
     k = np.arange(1, len(z) + 1)
     glr = np.cumsum(np.nan_to_num(z, nan=0.0)) / np.sqrt(k)
     best = int(np.argmax(glr))
     if glr[best] < params.beyond_z:
         return 0.0
+    if best >= read[-1] and read[-1] + 1 < len(z):
+        return float(reach_mm)  # echo up to where the read ends: it goes on that far
     section = _section_samples(step, params) * step
     return float(min(k[best] * section, reach_mm))

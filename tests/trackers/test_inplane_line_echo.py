@@ -88,6 +88,23 @@ def test_the_echo_read_past_the_end_of_a_line_that_goes_on():
     assert _beyond(im, A, end, reach_mm=8.0) == pytest.approx(8.0, abs=1.9)
 
 
+def test_an_echo_read_on_into_no_evidence_goes_on_as_far_as_it_is_read():
+    """Past the run of echo the band above the line lies in the black outside a sector (no
+    evidence) to the end of the read: the echo is taken to go on that far, not to end where
+    it can no longer be read (a line along a sector's edge reaches the edge of the view)."""
+    end = np.add(A, 0.4 * np.subtract(B, A))
+    im = _draw(_speckle(4), A, B, 250)
+    length = float(np.hypot(*np.subtract(B, A)))
+    d = np.subtract(B, A) / length
+    up = np.array([d[1], -d[0]])  # towards the probe
+    z, x = np.mgrid[:im.shape[0], :im.shape[1]] * SPACING
+    along = (x - A[0]) * d[0] + (z - A[1]) * d[1]
+    above = (x - A[0]) * up[0] + (z - A[1]) * up[1]
+    im[(along > 0.75 * length) & (above > 0.5)] = 0
+    rest = 0.6 * length
+    assert _beyond(im, A, end, reach_mm=rest) == pytest.approx(rest)
+
+
 def test_no_echo_past_the_end_of_a_line_that_ends():
     end = np.add(A, 0.4 * np.subtract(B, A))
     im = _draw(_speckle(5), A, B, 250, frac=(0.0, 0.4))
@@ -131,8 +148,10 @@ def test_tissue_under_a_vessel_is_no_echo(seed):
     im = _lumen(_speckle(seed), (6.0, 9.0), 3.0)
     seen, share = echo_along(_frame(im), _segment(FLAT_A, FLAT_B), True, EchoTestParams())
     assert not seen and share == 0.0
+    # read on past a line's end under the lumen alone, the echo shows no end: it is taken to
+    # go on as far as it is read (a needle's tip is only where its echo is seen to end)
     assert echo_beyond(_frame(im), _segment((0.5, 11.8), (3.0, 12.0)), True, 6.0,
-                       EchoTestParams()) == 0.0
+                       EchoTestParams()) == 6.0
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
