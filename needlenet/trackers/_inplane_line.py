@@ -118,6 +118,7 @@ class LineTracker(Tracker):
         self._x: np.ndarray | None = None  # (x, z, vx, vz), mm and mm/s
         self._P: np.ndarray | None = None
         self._dir: np.ndarray | None = None  # unit, entry -> tip
+        self._longest_mm = 0.0  # the tracked needle's longest segment
         self._line_point: np.ndarray | None = None
         self._misses = 0
         self._rejects = 0
@@ -373,8 +374,9 @@ class LineTracker(Tracker):
     def _search(self, wm: WorkingMap, is_valid, priority) -> tuple[NeedleLine, bool]:
         """The needle segment of this frame, and whether it is another line than the one
         tracked (the track then starts anew). While tracking, the window around the last line
-        is searched, and every ``full_search_every_frames`` frames (or when the window holds
-        no needle) the whole frame as well: a clearly stronger segment elsewhere
+        is searched, and every ``full_search_every_frames`` frames (every frame until the
+        tracked needle's segment has once been ``settled_length_mm`` long, or when the window
+        holds no needle) the whole frame as well: a clearly stronger segment elsewhere
         (``switch_ratio`` times the evidence) takes over, so that a track started on a
         needle-like tissue line does not hold out against the needle; so does a segment of
         higher priority (one that enters through the edge of the view)."""
@@ -398,7 +400,8 @@ class LineTracker(Tracker):
         near = find_needle_line(wm, level, replace(p.search, peaks=1), thetas % np.pi,
                                 prior=(self._line_point, p.track_window_mm),
                                 is_valid=is_valid)
-        if self._is_needle(near) and self._since_full < p.full_search_every_frames:
+        settled = self._longest_mm >= p.settled_length_mm
+        if self._is_needle(near) and self._since_full < p.full_search_every_frames and settled:
             return near, False
         self._since_full = 0
         other = full()
@@ -550,6 +553,7 @@ class LineTracker(Tracker):
     def _estimate(self, frame: Frame, seg: NeedleLine, measured_mm: np.ndarray,
                   used_tip_map: bool, accepted: bool | None, restarted: bool) -> NeedleEstimate:
         self._dir = seg.direction.copy()
+        self._longest_mm = max(self._longest_mm, seg.length_mm)
         self._line_point = 0.5 * (seg.start_mm + seg.end_mm)
         normal = np.array([-seg.direction[1], seg.direction[0]])
         if normal[1] < 0:

@@ -31,7 +31,10 @@ class LineTrackerParams:
     that map's tissue boxes. ``track_window_deg``/``track_window_mm``: while tracking,
     the line is searched within these of the last line; ``switch_ratio``: a segment elsewhere
     replaces it when its evidence sum is this many times larger; the whole frame is searched
-    for one every ``full_search_every_frames`` frames (a quarter second at 20 frames/s).
+    for one every ``full_search_every_frames`` frames (a quarter second at 20 frames/s), and
+    on every frame until the tracked needle's segment has once been ``settled_length_mm``
+    long (twice ``min_length_mm``: the direction of a shorter mark, a blob where a needle
+    comes in bright near the edge of a sector, is a guess that the window would follow).
     ``tip_window_mm``: the tip map's maximum is looked for this far behind and ahead of the
     segment's end. ``tip_map_min``:
     the tip map must reach this there to move the tip. ``accel_std_mm_s2``: the filter's
@@ -73,6 +76,7 @@ class LineTrackerParams:
     track_window_mm: float = 2.0
     switch_ratio: float = 1.5
     full_search_every_frames: int = 5
+    settled_length_mm: float = 10.0
     tip_window_mm: tuple[float, float] = (2.0, 1.0)
     tip_map_min: float = 0.3
     accel_std_mm_s2: float = 40.0
@@ -108,7 +112,7 @@ class LineTrackerParams:
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
             raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
         for name in ("edge_margin_mm", "entry_margin_mm", "mask_edge_mm", "track_window_mm",
-                     "contrast_window_mm", "min_length_mm"):
+                     "contrast_window_mm", "min_length_mm", "settled_length_mm"):
             if not 0.0 <= getattr(self, name) <= MAX_DISTANCE_MM:
                 raise ValueError(f"{name} must lie in 0-{MAX_DISTANCE_MM:g} mm, got "
                                  f"{getattr(self, name)}")

@@ -310,6 +310,37 @@ def test_a_learned_tip_past_the_end_of_the_echo_is_put_where_the_echo_ends():
     assert np.linalg.norm(est.tip_mm - np.array([95, 110]) * 0.2) < 0.5
 
 
+class _MapsSource(_MapSource):
+    """A stand-in learned source with one shaft map per frame (by frame index)."""
+
+    def likelihood(self, frame, roi=None):
+        return Likelihood(shaft=self.shaft[frame.index], tip=None, source=self.name)
+
+
+def test_a_short_first_mark_does_not_hold_the_track_against_the_needle():
+    """The first mark of a needle is a 6 mm line at 70 degrees (a bright blob where it comes
+    in: its direction is a guess); on the next frame the needle shows 16 mm at 50 degrees from
+    the same entry. Until the track has once been 10 mm long the whole frame is searched on
+    every frame, so the needle takes over at once (with the window alone the track followed
+    the blob until the whole-frame search of the fifth frame)."""
+    h, w = 200, 200
+    image = np.random.default_rng(10).integers(40, 120, (h, w)).astype(np.uint8)
+    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
+
+    def mark(angle_deg, length_mm):
+        a = np.deg2rad(angle_deg)
+        end = (length_mm / 0.2 * np.sin(a), 190 - length_mm / 0.2 * np.cos(a))
+        return _line_map(h, w, (0, 190), end, width=3)
+
+    blob = np.maximum(mark(70.0, 6.0), mark(67.0, 6.0))
+    maps = [blob, np.maximum(mark(69.0, 6.0), mark(50.0, 16.0))]
+    tr = LineTracker(features=_MapsSource(maps))
+    est = [tr.update(Frame(image=image, grid=g, t=0.05 * i, index=i)) for i in range(2)]
+    assert all(e.status == Status.TRACKING for e in est)
+    assert abs(est[0].details.theta_deg - 68.5) < 3.0
+    assert abs(est[1].details.theta_deg - 50.0) < 3.0, est[1].details.theta_deg
+
+
 def test_a_tracked_needle_whose_echo_streaks_on_to_the_edge_is_kept():
     """The veto on an echo that goes on to the edge refuses a new needle, not the needle
     tracked on the frame before (plane-wave imaging streaks a strong needle's echo on along
