@@ -16,8 +16,9 @@ The test's premise is tissue above the line. Where the band above is anechoic (a
 lumen, a shadow), any tissue below it reads as echo: the bottom of a vessel is a step, not a
 needle. A section whose band lies more than ``anechoic_sd`` speckle spreads below the tissue's
 level at its depth (:func:`tissue_level`) is therefore no evidence either way: it is left out
-of the share (and counts as no echo past a line's end). A needle under a vessel is seen by
-its sections elsewhere; a step whose every section lies under the lumen is no needle.
+of the share, and past a line's end it shows no end of the echo (:func:`echo_beyond`). A
+needle under a vessel is seen by its sections elsewhere; a step whose every section lies under
+the lumen is no needle.
 
 A needle's tip is where its echo ends, so the same sections are read on past the segment's
 end (:func:`echo_beyond`): where the echo goes on, the tip lies further on, and where it goes
