@@ -116,6 +116,8 @@ class LineDetails(EstimateDetails):
     # the measurement passed the filter's chi-square gate; None on the frame the filter starts
     restarted: bool = False
     # the filter restarted at the measurement after reinit_after_rejects rejections in a row
+    tip_at_echo_end: bool = False
+    # the learned measurement was moved back to where the needle's echo ends in the image
 
 
 @dataclass(frozen=True)

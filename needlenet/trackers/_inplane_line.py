@@ -348,12 +348,13 @@ class LineTracker(Tracker):
         if new_line and self._dir is not None:
             self._forget()  # another line than the one tracked: start anew
         seg = self._orient(seg, frame, inner)
-        tip_mm, used_tip_map = self._tip(frame, seg, lik.tip, map_grid,
-                                         self._reach_mm(seg, wm, frame, inner))
+        tip_mm, used_tip_map, at_echo_end = self._tip(frame, seg, lik.tip, map_grid,
+                                                      self._reach_mm(seg, wm, frame, inner))
         self._misses = 0
         measured = tip_mm.copy()
         accepted, restarted = self._filter(tip_mm)
-        est = self._estimate(frame, seg, measured, used_tip_map, accepted, restarted)
+        est = self._estimate(frame, seg, measured, used_tip_map, accepted, restarted,
+                             at_echo_end)
         if self._since_full == 0:
             # the whole frame was searched: look beside the needle for still tissue lines
             self._still.observe(wm, self._level(), self.params.search, self._line_point,
@@ -483,8 +484,9 @@ class LineTracker(Tracker):
         return float(np.linalg.norm(longer.end_mm - seg.end_mm))
 
     def _tip(self, frame: Frame, seg: NeedleLine, tip_map, grid, reach_mm: float = 0.0
-             ) -> tuple[np.ndarray, bool]:
-        """The tip (x, z) on the centre line: the segment's far end, moved to the tip map's
+             ) -> tuple[np.ndarray, bool, bool]:
+        """The tip (x, z) on the centre line, whether the tip map placed it and whether it was
+        moved back to the end of the echo: the segment's far end, moved to the tip map's
         maximum when the map is confident there, searched from ``tip_window_mm`` behind the
         end to its window ahead of the end's weaker continuation (``reach_mm`` long): weaker
         shaft evidence moves the tip only where the tip map confirms it. A learned tip that
@@ -500,6 +502,7 @@ class LineTracker(Tracker):
             end, used = self._tip_map_max(tip_map, grid, end, seg.direction, reach_mm)
         else:  # the classical echo itself goes on this far (see _reach_mm)
             end = end + reach_mm * seg.direction
+        along = None
         if self.features.kind == "learned":
             along = echo_end(frame, seg.start_mm, seg.direction,
                              float((end - seg.start_mm) @ seg.direction), p.echo_end)
@@ -507,7 +510,7 @@ class LineTracker(Tracker):
                 end, used = seg.start_mm + along * seg.direction, False
                 if tip_map is not None:
                     end, used = self._tip_map_max(tip_map, grid, end, seg.direction, 0.0, end)
-        return end + self._offset_mm() * normal, used
+        return end + self._offset_mm() * normal, used, along is not None
 
     def _tip_map_max(self, tip_map, grid, end: np.ndarray, d: np.ndarray, reach_mm: float,
                      default: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
@@ -551,7 +554,8 @@ class LineTracker(Tracker):
         self._rejects = 0
 
     def _estimate(self, frame: Frame, seg: NeedleLine, measured_mm: np.ndarray,
-                  used_tip_map: bool, accepted: bool | None, restarted: bool) -> NeedleEstimate:
+                  used_tip_map: bool, accepted: bool | None, restarted: bool,
+                  at_echo_end: bool) -> NeedleEstimate:
         self._dir = seg.direction.copy()
         self._longest_mm = max(self._longest_mm, seg.length_mm)
         self._line_point = 0.5 * (seg.start_mm + seg.end_mm)
@@ -569,4 +573,4 @@ class LineTracker(Tracker):
                 tip_velocity_mm_s=self._x[2:].copy(), shaft_support=seg.support,
                 segment_length_mm=seg.length_mm, tip_measurement_mm=measured_mm,
                 tip_from_tip_map=used_tip_map, measurement_accepted=accepted,
-                restarted=restarted))
+                restarted=restarted, tip_at_echo_end=at_echo_end))

@@ -308,6 +308,7 @@ def test_a_learned_tip_past_the_end_of_the_echo_is_put_where_the_echo_ends():
     est = LineTracker(features=_MapSource(shaft)).update(Frame(image=image, grid=g, t=0.0))
     assert est.status == Status.TRACKING, est.reason
     assert np.linalg.norm(est.tip_mm - np.array([95, 110]) * 0.2) < 0.5
+    assert est.details.tip_at_echo_end and est.to_json()["tip_at_echo_end"] is True
 
 
 class _MapsSource(_MapSource):
