@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..features import Frame, image_statistics
-from ._inplane_line_echo import image_strip
+from ..features import Frame
+from ._inplane_line_echo import frame_spread, image_strip
 
 __all__ = ["EchoEndParams", "echo_end"]
 
@@ -66,7 +66,7 @@ def echo_end(frame: Frame, start_mm: np.ndarray, direction: np.ndarray, tip_alon
     at = np.arange(k, len(profile) - k + 1)  # a drop between t[i - 1] and t[i]
     drop = means[at - k] - means[at]
     j = int(np.argmax(drop))
-    spread = image_statistics(np.asarray(frame.image))[1]
+    spread = frame_spread(frame)
     end = float(t[at[j]])
     if drop[j] < p.min_drop_sd * spread or tip_along_mm - end <= p.window_mm:
         return None

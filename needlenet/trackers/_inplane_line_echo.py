@@ -41,7 +41,8 @@ from ..features import (
 )
 from ._inplane_evidence import echo_sections, echo_shown, section_means
 
-__all__ = ["EchoTestParams", "echo_along", "echo_beyond", "image_strip", "tissue_level"]
+__all__ = ["EchoTestParams", "echo_along", "echo_beyond", "frame_spread", "image_strip",
+           "tissue_level"]
 
 
 @dataclass(frozen=True)
@@ -109,12 +110,19 @@ def _row_medians(image: np.ndarray) -> np.ndarray:
     return np.where(imaged > 0, med, np.nan)
 
 
+def frame_spread(frame: Frame) -> float:
+    """The frame's speckle spread: 1.4826 times the median absolute deviation of its imaged
+    pixels (as for :func:`~needlenet.features.line_contrast`). Read once per frame."""
+    if "speckle_spread" not in frame.extras:
+        frame.extras["speckle_spread"] = image_statistics(np.asarray(frame.image))[1]
+    return frame.extras["speckle_spread"]
+
+
 def tissue_level(frame: Frame, window_mm: float) -> tuple[np.ndarray, float]:
     """The tissue's grey level at each image row (the median, over the imaged rows within
     ``window_mm`` of it, of each row's median imaged pixel: local in depth, where gain and
     attenuation change the level, and robust to a vessel or shadow that covers less than half
-    a row) and the image's speckle spread (1.4826 times the median absolute deviation of its
-    imaged pixels, as for :func:`~needlenet.features.line_contrast`). Read once per frame."""
+    a row) and the frame's speckle spread (:func:`frame_spread`). Read once per frame."""
     key = ("tissue_level", float(window_mm))
     if key not in frame.extras:
         im = np.asarray(frame.image)
@@ -129,7 +137,7 @@ def tissue_level(frame: Frame, window_mm: float) -> tuple[np.ndarray, float]:
             level[rows] = np.median(windows, axis=1)
             # rows without imaged pixels (a capture margin) take the nearest imaged row's
             level = np.interp(np.arange(len(med)), rows, level[rows])
-        frame.extras[key] = (level, image_statistics(im)[1])
+        frame.extras[key] = (level, frame_spread(frame))
     return frame.extras[key]
 
 
