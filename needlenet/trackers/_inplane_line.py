@@ -6,7 +6,9 @@ frame, every direction and offset (:func:`~needlenet.backends._line_search.find_
 or, while a needle is tracked, within a window around its last line. The line is accepted as a
 needle only when its supported segment is at least ``min_length_mm`` long with mean evidence at
 or above the level that marks a needle (probability 0.5 for a learned map; for the classical
-map ``classical_level`` local standard deviations above the surrounding tissue). The tip is the
+map ``classical_level`` local standard deviations above the surrounding tissue), or, while no
+needle is tracked, when a shorter learned mark entering through the edge of the view has grown
+where it was first seen (a needle coming in; :mod:`._inplane_growing`). The tip is the
 segment's end away from the entry, refined by the tip map where the source has one (with
 classical features: moved on to where the echo along the line ends), and a
 constant-velocity Kalman filter on the tip's (x, z) smooths it between frames. A segment that
@@ -68,6 +70,7 @@ from ._inplane_geometry import (
     on_line,
     sample_grid,
 )
+from ._inplane_growing import GrowingMark
 from ._inplane_line_echo import echo_along, echo_beyond
 from ._inplane_line_params import MAX_DISTANCE_MM, LineTrackerParams
 from ._inplane_still import StillLines
@@ -112,6 +115,7 @@ class LineTracker(Tracker):
         super().reset()
         self._axis: tuple[np.ndarray, np.ndarray] | None = None  # (point, unit direction)
         self._still = StillLines(self.params.still)
+        self._growing = GrowingMark(self.params.growing)
         self._forget()
 
     def _forget(self) -> None:
@@ -341,7 +345,9 @@ class LineTracker(Tracker):
             self._x, self._P = predict(self._x, self._P, *self._motion(dt))
         is_valid, priority, looks = self._validity(frame, inner)
         seg, new_line = self._search(wm, is_valid, priority)
-        if not self._is_needle(seg):
+        if self._is_needle(seg):
+            self._growing.clear()
+        elif not self._grown(seg, priority):
             return self._missed(frame, seg)
         if priority(seg):  # it enters through the edge of the view: the insertion's axis
             self._axis = (0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy())
@@ -431,6 +437,23 @@ class LineTracker(Tracker):
     def _is_needle(self, seg: NeedleLine) -> bool:
         return bool(seg) and seg.length_mm >= self.params.min_length_mm and \
             seg.support >= self._level()
+
+    def _grown(self, seg: NeedleLine, priority) -> bool:
+        """Whether ``seg``, shorter than a needle segment, is a needle's first mark: while no
+        needle is tracked, a learned mark at the needle's level that enters through the edge
+        of the view and has grown from there since it was first seen (:mod:`._inplane_growing`).
+        Not with classical features: the ends of short segments on the line-contrast map move
+        by millimetres from frame to frame on still tissue, as much as a needle grows."""
+        g = self.params.growing
+        if self.features.kind != "learned" or self._dir is not None or not seg or \
+                seg.support < self._level() or \
+                seg.length_mm < g.min_length_mm or not priority(seg):
+            self._growing.missed()
+            return False
+        if self._growing.growth_mm(seg) < g.growth_mm:
+            return False
+        self._growing.clear()
+        return True
 
     def _missed(self, frame: Frame, seg: NeedleLine) -> NeedleEstimate:
         had = self._x is not None

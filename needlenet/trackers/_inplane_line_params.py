@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from ..backends import LineSearchParams
 from ._inplane_echo_end import EchoEndParams
+from ._inplane_growing import GrowingMarkParams
 from ._inplane_line_echo import EchoTestParams
 from ._inplane_still import StillLineParams
 
@@ -58,7 +59,8 @@ class LineTrackerParams:
     (:mod:`._inplane_line_echo`). ``echo_end``: with learned features a tip past where the
     needle's echo ends in the image is moved back there (:mod:`._inplane_echo_end`).
     ``still``: lines seen standing still beside the advancing needle are tissue
-    (:mod:`._inplane_still`).
+    (:mod:`._inplane_still`). ``growing``: a learned mark shorter than ``min_length_mm`` is
+    taken for a needle coming in once it has grown where it enters (:mod:`._inplane_growing`).
     ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
     not read (the mask's step is no echo; the shipped in-plane model marks it up to 1.5 mm
     in, measured on needle-free synth frames with sector masks and margins)."""
@@ -67,6 +69,7 @@ class LineTrackerParams:
     echo: EchoTestParams = field(default_factory=EchoTestParams)
     echo_end: EchoEndParams = field(default_factory=EchoEndParams)
     still: StillLineParams = field(default_factory=StillLineParams)
+    growing: GrowingMarkParams = field(default_factory=GrowingMarkParams)
     min_length_mm: float = 5.0
     learned_level: float = 0.5
     learned_extend_level: float = 0.25

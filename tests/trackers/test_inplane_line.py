@@ -342,6 +342,32 @@ def test_a_short_first_mark_does_not_hold_the_track_against_the_needle():
     assert abs(est[1].details.theta_deg - 50.0) < 3.0, est[1].details.theta_deg
 
 
+@pytest.mark.parametrize("lengths, tracked", [
+    ((3.0, 3.1, 4.5), (False, False, True)),  # a needle coming in: its mark grows
+    ((4.0, 4.2, 3.9, 4.1, 4.0, 4.2), (False,) * 6),  # a still tissue mark: it never does
+])
+def test_a_short_mark_is_taken_for_a_needle_once_it_grows(lengths, tracked):
+    """A mark shorter than ``min_length_mm`` entering through the top edge is taken for the
+    needle coming in once it has grown by 1 mm where it was first seen; a still mark of the
+    same length is not."""
+    h, w = 200, 200
+    image = np.random.default_rng(11).integers(40, 120, (h, w)).astype(np.uint8)
+    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
+    a = np.deg2rad(40.0)
+
+    def mark(length_mm):
+        end = (length_mm / 0.2 * np.sin(a), 190 - length_mm / 0.2 * np.cos(a))
+        return _line_map(h, w, (0, 190), end, width=3)
+
+    tr = LineTracker(features=_MapsSource([mark(x) for x in lengths]))
+    est = [tr.update(Frame(image=image, grid=g, t=0.05 * i, index=i))
+           for i in range(len(lengths))]
+    assert tuple(e.status == Status.TRACKING for e in est) == tracked, [e.reason for e in est]
+    if tracked[-1]:
+        tip = np.array([190 * 0.2 - 4.5 * np.cos(a), 4.5 * np.sin(a)])
+        assert np.linalg.norm(est[-1].tip_mm - tip) < 0.6
+
+
 def test_a_tracked_needle_whose_echo_streaks_on_to_the_edge_is_kept():
     """The veto on an echo that goes on to the edge refuses a new needle, not the needle
     tracked on the frame before (plane-wave imaging streaks a strong needle's echo on along

@@ -1,0 +1,82 @@
+"""A needle's first mark: shorter than a needle segment, but growing where it enters.
+
+A needle coming into the view shows first as a short mark at the edge, a few millimetres
+long, which a search for needle segments of ``min_length_mm`` does not take: a short
+needle-like mark is as often a piece of tissue. What tells them apart is insertion: the
+needle's mark grows while it stays where it was, its tip end moving on. A tissue mark stands
+still and keeps its length (its ends jitter by the map's noise, some tenths of a millimetre),
+and one moved by the probe moves as a whole.
+
+:class:`GrowingMark` keeps the first sighting of a short mark that enters through the edge of
+the view and tells, on each later frame, how much longer the same mark is (a mark that passes
+within ``near_mm`` of the first sighting's middle; not its direction: a mark a few
+millimetres long at the edge of a sector is a blob whose line's direction is a guess); the
+`line` tracker takes it for a needle once it has grown by ``growth_mm``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..backends import NeedleLine
+
+__all__ = ["GrowingMarkParams", "GrowingMark"]
+
+
+@dataclass(frozen=True)
+class GrowingMarkParams:
+    """``min_length_mm``: the shortest mark remembered (2 mm: some twenty pixels of a fine
+    grid, a few speckle cells). ``growth_mm``: how much longer than at its first sighting the
+    mark must be to be taken for a needle (1 mm: three times the jitter of a map's end on a
+    still mark). ``near_mm``: a later mark that passes this close to the first sighting's
+    middle is the same mark (the `line` tracker's ``track_window_mm``: a needle's echo band
+    with the point spread of a phased array a few centimetres deep).
+    ``forget_after_frames``: frames without the mark after which its sighting is dropped."""
+
+    min_length_mm: float = 2.0
+    growth_mm: float = 1.0
+    near_mm: float = 2.0
+    forget_after_frames: int = 5
+
+    def __post_init__(self) -> None:
+        for name in ("min_length_mm", "growth_mm", "near_mm"):
+            if not 0.0 < getattr(self, name) <= 100.0:
+                raise ValueError(f"{name} must lie in (0, 100] mm, got {getattr(self, name)}")
+        if self.forget_after_frames < 1:
+            raise ValueError(f"forget_after_frames must be >= 1, got "
+                             f"{self.forget_after_frames}")
+
+
+class GrowingMark:
+    """The first sighting of a short entering mark, and its growth since (see the module's
+    doc)."""
+
+    def __init__(self, params: GrowingMarkParams | None = None):
+        self.params = GrowingMarkParams() if params is None else params
+        self.clear()
+
+    def clear(self) -> None:
+        self._middle: np.ndarray | None = None
+        self._length = 0.0
+        self._unseen = 0
+
+    def missed(self) -> None:
+        """A frame without a short entering mark."""
+        self._unseen += 1
+        if self._unseen >= self.params.forget_after_frames:
+            self.clear()
+
+    def growth_mm(self, seg: NeedleLine) -> float:
+        """How much longer ``seg`` is than at its first sighting (0 on the first sighting,
+        which it becomes when it is not the mark seen before)."""
+        self._unseen = 0
+        if self._middle is not None:
+            t = np.clip((self._middle - seg.start_mm) @ seg.direction, 0.0, seg.length_mm)
+            off = float(np.linalg.norm(seg.start_mm + t * seg.direction - self._middle))
+            if off <= self.params.near_mm:
+                return float(seg.length_mm - self._length)
+        self._middle = 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
+        self._length = float(seg.length_mm)
+        return 0.0

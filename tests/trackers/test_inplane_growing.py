@@ -1,0 +1,57 @@
+"""A needle's first mark (needlenet/trackers/_inplane_growing.py): a short mark is taken for a
+needle once it has grown where it was; a still mark, whose ends jitter, never is, nor is one
+moved as a whole."""
+
+import numpy as np
+import pytest
+
+from needlenet.backends import NeedleLine
+from needlenet.trackers._inplane_growing import GrowingMark, GrowingMarkParams
+
+
+def _mark(start, angle_deg, length_mm):
+    d = np.array([np.cos(np.deg2rad(angle_deg)), np.sin(np.deg2rad(angle_deg))])
+    s = np.asarray(start, float)
+    return NeedleLine(True, start_mm=s, end_mm=s + length_mm * d, direction=d, support=0.7,
+                      score=length_mm)
+
+
+def test_a_still_mark_whose_ends_jitter_never_grows():
+    rng = np.random.default_rng(0)
+    g = GrowingMark()
+    growth = [g.growth_mm(_mark(rng.normal([5.0, 1.0], 0.2), 40 + rng.normal(0, 3),
+                                4.0 + rng.normal(0, 0.15))) for _ in range(50)]
+    assert growth[0] == 0.0
+    assert max(growth) < GrowingMarkParams().growth_mm
+
+
+def test_a_mark_that_grows_where_it_is_reaches_the_growth():
+    g = GrowingMark()
+    # a blob whose line's direction is a guess, then the needle's own line through it
+    assert g.growth_mm(_mark([5.0, 1.0], 80.0, 2.5)) == 0.0
+    assert g.growth_mm(_mark([4.0, 1.2], 40.0, 3.0)) == pytest.approx(0.5)
+    assert g.growth_mm(_mark([4.0, 1.2], 40.0, 4.2)) == pytest.approx(1.7)
+
+
+def test_a_mark_moved_as_a_whole_is_a_new_sighting():
+    g = GrowingMark()
+    g.growth_mm(_mark([5.0, 1.0], 40.0, 3.0))
+    assert g.growth_mm(_mark([12.0, 1.0], 40.0, 4.5)) == 0.0  # 7 mm away: another mark
+    assert g.growth_mm(_mark([12.0, 1.0], 40.0, 4.6)) == pytest.approx(0.1)
+
+
+def test_a_sighting_is_forgotten_after_frames_without_the_mark():
+    g = GrowingMark(GrowingMarkParams(forget_after_frames=2))
+    g.growth_mm(_mark([5.0, 1.0], 40.0, 3.0))
+    g.missed()
+    assert g.growth_mm(_mark([5.0, 1.0], 40.0, 4.5)) == pytest.approx(1.5)
+    g.missed()
+    g.missed()
+    assert g.growth_mm(_mark([5.0, 1.0], 40.0, 6.0)) == 0.0
+
+
+@pytest.mark.parametrize("name, value", [("growth_mm", 0.0), ("near_mm", -1.0),
+                                         ("min_length_mm", 1e3), ("forget_after_frames", 0)])
+def test_settings_out_of_range_are_refused(name, value):
+    with pytest.raises(ValueError, match=name):
+        GrowingMarkParams(**{name: value})
