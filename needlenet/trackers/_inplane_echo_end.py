@@ -14,6 +14,16 @@ stretch of shaft is no end). The scan covers ``back_mm`` before the map's tip (t
 length, up to 7 mm on a saturated shaft) to ``ahead_mm`` past it. A map's tip that lies more
 than ``window_mm`` (the drop's resolution) past the echo's end is moved back to it; one
 nearer is the map's own.
+
+A needle near the skin at a few degrees shows no such drop: its echo is saturated, and so is
+the streak for several millimetres; the streak then fades over millimetres, with no step. What
+ends at the tip there is the needle's reverberation tail, the copies of its echo under the
+shaft, which fade with the streak's own copies. So the echo is also read as the mean over a
+band across the line, from ``band_mm[0]`` above it to ``band_mm[1]`` below it (the echo with
+its tail), and its level over ``shaft_mm`` of shaft before the scanned stretch: where that
+mean has fallen ``min_drop_sd`` spreads below the shaft's level by the map's tip, the echo
+ends where it last stood within one spread of that level (the start of the fall, not its
+steepest point). The earlier of the two ends is taken.
 """
 
 from __future__ import annotations
@@ -37,10 +47,13 @@ class EchoEndParams:
     min_drop_sd: float = 2.0
     back_mm: float = 6.0
     ahead_mm: float = 1.0
+    band_mm: tuple[float, float] = (-0.5, 3.0)
+    shaft_mm: float = 4.0
 
     def __post_init__(self) -> None:
         if not (self.window_mm > 0 and self.across_mm >= 0 and self.min_drop_sd > 0
-                and self.back_mm > 0 and self.ahead_mm >= 0):
+                and self.back_mm > 0 and self.ahead_mm >= 0 and self.shaft_mm > 0
+                and self.band_mm[0] < self.band_mm[1]):
             raise ValueError(f"echo end settings out of range: {self}")
 
 
@@ -48,8 +61,24 @@ def echo_end(frame: Frame, start_mm: np.ndarray, direction: np.ndarray, tip_alon
              params: EchoEndParams) -> float | None:
     """Where (mm along ``direction`` from ``start_mm``, the needle's entry end) the needle's
     echo ends, when a tip at ``tip_along_mm`` lies more than ``params.window_mm`` past it;
-    None when the tip stands (no drop, or the tip within the drop's resolution)."""
-    p = params
+    None when the tip stands (no end seen, or the tip within the drop's resolution). The
+    earlier of the echo's drop and the fall of its band (see the module's doc)."""
+    ends = [e for e in (_largest_drop(frame, start_mm, direction, tip_along_mm, params),
+                        _band_fall(frame, start_mm, direction, tip_along_mm, params))
+            if e is not None]
+    return min(ends) if ends else None
+
+
+def _means(profile: np.ndarray, k: int) -> np.ndarray:
+    """Means over ``k`` samples: element m covers samples m .. m + k - 1."""
+    c = np.concatenate([[0.0], np.cumsum(profile)])
+    return (c[k:] - c[:-k]) / k
+
+
+def _largest_drop(frame: Frame, start_mm: np.ndarray, direction: np.ndarray,
+                  tip_along_mm: float, p: EchoEndParams) -> float | None:
+    """The echo's largest drop before the map's tip, when it reaches ``min_drop_sd`` spreads
+    and the echo does not come back."""
     step = float(min(frame.grid.spacing_mm))
     k = max(int(round(p.window_mm / step)), 1)
     lo = max(tip_along_mm - p.back_mm, p.window_mm)
@@ -61,8 +90,7 @@ def echo_end(frame: Frame, start_mm: np.ndarray, direction: np.ndarray, tip_alon
     image = np.asarray(frame.image, np.float32)
     profile = image_strip(image, frame, np.asarray(start_mm, float), d,
                           np.array([-d[1], d[0]]), t, across).max(axis=0)
-    c = np.concatenate([[0.0], np.cumsum(profile)])
-    means = (c[k:] - c[:-k]) / k  # means[m]: the window t[m] .. t[m + k - 1]
+    means = _means(profile, k)
     at = np.arange(k, len(profile) - k + 1)  # a drop between t[i - 1] and t[i]
     drop = means[at - k] - means[at]
     j = int(np.argmax(drop))
@@ -73,4 +101,35 @@ def echo_end(frame: Frame, start_mm: np.ndarray, direction: np.ndarray, tip_alon
     later = means[at[j]:int(np.searchsorted(t, tip_along_mm))]
     if later.size and later.max() > means[at[j] - k] - spread:
         return None  # the echo comes back: a faded stretch of shaft
+    return end
+
+
+def _band_fall(frame: Frame, start_mm: np.ndarray, direction: np.ndarray,
+               tip_along_mm: float, p: EchoEndParams) -> float | None:
+    """Where the mean over the band across the line (the echo with its reverberation tail)
+    last stood within a spread of the shaft's level, when by the map's tip it has fallen
+    ``min_drop_sd`` spreads below it."""
+    step = float(min(frame.grid.spacing_mm))
+    k = max(int(round(p.window_mm / step)), 1)
+    shaft_to = tip_along_mm - p.back_mm
+    if shaft_to < 2 * p.window_mm:
+        return None  # too little shaft before the scanned stretch to read its level
+    t = np.arange(max(shaft_to - p.shaft_mm, 0.0), tip_along_mm + 1e-9, step)
+    d = np.asarray(direction, float)
+    down = np.array([-d[1], d[0]]) if d[0] >= 0 else np.array([d[1], -d[0]])  # z grows
+    across = np.arange(p.band_mm[0], p.band_mm[1] + 1e-9, step)
+    image = np.asarray(frame.image, np.float32)
+    profile = image_strip(image, frame, np.asarray(start_mm, float), d, down, t,
+                          across).mean(axis=0)
+    level = float(np.median(profile[t <= shaft_to]))
+    spread = frame_spread(frame)
+    trailing = _means(profile, k)  # element m ends at t[m + k - 1]
+    if trailing[-1] > level - p.min_drop_sd * spread:
+        return None  # by the map's tip the band has not fallen: no end seen
+    within = np.flatnonzero(trailing >= level - spread)
+    if not within.size:
+        return None
+    end = float(t[within[-1] + k - 1])
+    if end < shaft_to or tip_along_mm - end <= p.window_mm:
+        return None
     return end

@@ -1,5 +1,6 @@
 """Where a needle's echo ends along its line (needlenet/trackers/_inplane_echo_end.py): a
-learned tip past it (a map that marks the streak of unfocused imaging) is moved back."""
+learned tip past it (a map that marks the streak of unfocused imaging) is moved back, to the
+echo's drop or, on a saturated needle, to where its reverberation tail ends."""
 
 import numpy as np
 import pytest
@@ -52,6 +53,25 @@ def test_no_end_where_the_echo_goes_on(seed):
     assert echo_end(faded, A, D, END + 2.0, EchoEndParams()) is None
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_saturated_shallow_needle_ends_where_its_reverberations_end(seed):
+    """A needle at 6 degrees, saturated, with three reverberation copies under it to its tip,
+    and a streak on its line as bright as the shaft for 3 mm past the tip, fading over 3 mm
+    more: its echo line shows no drop, its band (echo and tail) falls where the copies end."""
+    a = np.array([2.0, 5.0])
+    d = np.array([np.cos(np.deg2rad(6.0)), np.sin(np.deg2rad(6.0))])
+    down = np.array([-d[1], d[0]])
+    im = _speckle(seed)
+    for off, grey in ((0.9, 255), (1.8, 230), (2.7, 200)):
+        _draw(im, a + off * down, a + END * d + off * down, grey)
+    for x in np.arange(0.0, 6.0, 0.1):  # the streak: 255 for 3 mm, then down to 200
+        grey = 255 if x < 3.0 else 255 - 55 * (x - 3.0) / 3.0
+        _draw(im, a + (END + x) * d, a + (END + x + 0.1) * d, grey)
+    _draw(im, a, a + END * d, 255)
+    end = echo_end(_frame(im), a, d, END + 5.0, EchoEndParams())
+    assert end is not None and END - 0.2 <= end <= END + 0.8, end
+
+
 def test_speckle_alone_rarely_shows_an_end():
     """Along lines of speckle alone a drop of two spreads between 1.5 mm means is rare
     (seeded: 0 of 60 lines)."""
@@ -72,3 +92,5 @@ def test_settings_out_of_range_are_refused():
         EchoEndParams(window_mm=0.0)
     with pytest.raises(ValueError, match="echo end"):
         EchoEndParams(min_drop_sd=-1.0)
+    with pytest.raises(ValueError, match="echo end"):
+        EchoEndParams(band_mm=(3.0, -0.5))
