@@ -16,14 +16,17 @@ than ``window_mm`` (the drop's resolution) past the echo's end is moved back to 
 nearer is the map's own.
 
 A needle near the skin at a few degrees shows no such drop: its echo is saturated, and so is
-the streak for several millimetres; the streak then fades over millimetres, with no step. What
-ends at the tip there is the needle's reverberation tail, the copies of its echo under the
-shaft, which fade with the streak's own copies. So the echo is also read as the mean over a
-band across the line, from ``band_mm[0]`` above it to ``band_mm[1]`` below it (the echo with
-its tail), and its level over ``shaft_mm`` of shaft before the scanned stretch: where that
-mean has fallen ``min_drop_sd`` spreads below the shaft's level by the map's tip, the echo
-ends where it last stood within one spread of that level (the start of the fall, not its
-steepest point). The earlier of the two ends is taken.
+the streak for several millimetres, longer than ``back_mm`` with few compounded transmits;
+the streak then fades over millimetres, with no step. What ends at the tip there is the
+needle's reverberation tail, the copies of its echo under the shaft, which fade with the
+streak's own copies. So the echo is also read as the mean over a band across the line, from
+``band_mm[0]`` above it to ``band_mm[1]`` below it (the echo with its tail), and its level
+over ``shaft_mm`` of shaft next to the entry (after the first ``window_mm``, where the map's
+evidence starts at the edge of the view): where that mean has fallen ``min_drop_sd`` spreads
+below the shaft's level by the map's tip, the echo ends where it last stood within one spread
+of that level (the start of the fall, not its steepest point), provided the echo line itself
+goes on there within a spread of its own level on the shaft (a streak; a needle leaving the
+plane fades as a whole). The earlier of the two ends is taken.
 """
 
 from __future__ import annotations
@@ -107,21 +110,22 @@ def _largest_drop(frame: Frame, start_mm: np.ndarray, direction: np.ndarray,
 def _band_fall(frame: Frame, start_mm: np.ndarray, direction: np.ndarray,
                tip_along_mm: float, p: EchoEndParams) -> float | None:
     """Where the mean over the band across the line (the echo with its reverberation tail)
-    last stood within a spread of the shaft's level, when by the map's tip it has fallen
-    ``min_drop_sd`` spreads below it."""
+    last stood within a spread of the shaft's level next to the entry, when by the map's tip
+    it has fallen ``min_drop_sd`` spreads below it."""
     step = float(min(frame.grid.spacing_mm))
     k = max(int(round(p.window_mm / step)), 1)
-    shaft_to = tip_along_mm - p.back_mm
-    if shaft_to < 2 * p.window_mm:
-        return None  # too little shaft before the scanned stretch to read its level
-    t = np.arange(max(shaft_to - p.shaft_mm, 0.0), tip_along_mm + 1e-9, step)
+    shaft_to = p.window_mm + p.shaft_mm
+    if tip_along_mm - shaft_to < 2 * p.window_mm:
+        return None  # too short a segment to read the shaft's level and a fall after it
+    t = np.arange(p.window_mm, tip_along_mm + 1e-9, step)
     d = np.asarray(direction, float)
     down = np.array([-d[1], d[0]]) if d[0] >= 0 else np.array([d[1], -d[0]])  # z grows
     across = np.arange(p.band_mm[0], p.band_mm[1] + 1e-9, step)
     image = np.asarray(frame.image, np.float32)
-    profile = image_strip(image, frame, np.asarray(start_mm, float), d, down, t,
-                          across).mean(axis=0)
-    level = float(np.median(profile[t <= shaft_to]))
+    strip = image_strip(image, frame, np.asarray(start_mm, float), d, down, t, across)
+    profile = strip.mean(axis=0)
+    shaft = t <= shaft_to
+    level = float(np.median(profile[shaft]))
     spread = frame_spread(frame)
     trailing = _means(profile, k)  # element m ends at t[m + k - 1]
     if trailing[-1] > level - p.min_drop_sd * spread:
@@ -129,7 +133,13 @@ def _band_fall(frame: Frame, start_mm: np.ndarray, direction: np.ndarray,
     within = np.flatnonzero(trailing >= level - spread)
     if not within.size:
         return None
-    end = float(t[within[-1] + k - 1])
-    if end < shaft_to or tip_along_mm - end <= p.window_mm:
+    m = within[-1] + k - 1
+    end = float(t[m])
+    if tip_along_mm - end <= p.window_mm:
+        return None
+    # the echo line itself goes on as bright past there (a streak): a needle's echo that
+    # fades as a whole, leaving the plane, fades with its band and is no streak
+    line = strip[np.abs(across) <= p.across_mm].max(axis=0)
+    if line[m + 1:m + 1 + k].mean() < float(np.median(line[shaft])) - p.min_drop_sd * spread:
         return None
     return end

@@ -5,7 +5,7 @@ echo's drop or, on a saturated needle, to where its reverberation tail ends."""
 import numpy as np
 import pytest
 
-from needlenet.trackers._inplane_echo_end import EchoEndParams, echo_end
+from needlenet.trackers._inplane_echo_end import EchoEndParams, _band_fall, echo_end
 from tests.trackers.test_inplane_line_echo import SPACING, _draw, _frame, _speckle
 
 A = np.array([2.0, 4.0])
@@ -70,6 +70,24 @@ def test_a_saturated_shallow_needle_ends_where_its_reverberations_end(seed):
     _draw(im, a, a + END * d, 255)
     end = echo_end(_frame(im), a, d, END + 5.0, EchoEndParams())
     assert end is not None and END - 0.2 <= end <= END + 0.8, end
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_needle_fading_as_a_whole_keeps_its_tip(seed):
+    """A needle leaving the plane: its echo and its reverberation copies fade together over
+    its last 6 mm to the tissue's level, and the map's tip is at its end. The band falls, but
+    so does the echo line: no streak, and the band's fall moves nothing (the echo line's own
+    largest drop is the other rule's, tested above)."""
+    a = np.array([2.0, 5.0])
+    d = np.array([np.cos(np.deg2rad(6.0)), np.sin(np.deg2rad(6.0))])
+    down = np.array([-d[1], d[0]])
+    im = _speckle(seed)
+    for x in np.arange(0.0, END, 0.1):
+        fade = min(1.0, (END - x) / 6.0)
+        for off, grey in ((0.0, 250), (0.9, 250), (1.8, 230), (2.7, 200)):
+            _draw(im, a + x * d + off * down, a + (x + 0.1) * d + off * down,
+                  110 + fade * (grey - 110))
+    assert _band_fall(_frame(im), a, d, END, EchoEndParams()) is None
 
 
 def test_speckle_alone_rarely_shows_an_end():
