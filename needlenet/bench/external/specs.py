@@ -173,6 +173,20 @@ VALIDATION_SPECS = (
     SequenceSpec("val_lin_no_needle", "L11-5v", 307, needle=False, n_frames=10,
                  interface=(0.0, 12.0, -10.0), interface_cr=2.4, vessel=(-4.0, 20.0, 3.0),
                  dynamic_range_db=60, tissue_grey=80, feature="no needle; interface, vessel"),
+    # a third round: shallow needles from the right near the skin, as in-plane recordings of
+    # biopsies show them (specs fixed before any model or tracker was run on them)
+    SequenceSpec("val_lin_right_side_6", "L11-5v", 308, side="right", entry_x_mm=60.0,
+                 angle_deg=6, start_mm=51.8, step_mm=1.5, n_frames=10, target_cr=2.6,
+                 gauge=21, n_reverb=3, reverb_gain=0.4, dynamic_range_db=60, tissue_grey=90,
+                 feature="shallow, near the skin"),
+    SequenceSpec("val_l12_right_side_12_reverb", "L12-3v", 309, side="right", entry_x_mm=55.0,
+                 angle_deg=12, start_mm=45.0, step_mm=1.5, n_frames=10, target_cr=3.0,
+                 gauge=18, n_reverb=4, reverb_gain=0.5, dynamic_range_db=55, tissue_grey=100,
+                 feature="shallow, four reverberations"),
+    SequenceSpec("val_lin_right_side_10_faint", "L11-5v", 310, side="right", entry_x_mm=60.0,
+                 angle_deg=10, start_mm=52.3, step_mm=1.5, n_frames=10, target_cr=2.0,
+                 gauge=22, roughness=2.0, dynamic_range_db=50, tissue_grey=110,
+                 feature="shallow, faint, bright display"),
 )
 
 SETS = {"test": SPECS, "validation": VALIDATION_SPECS}
