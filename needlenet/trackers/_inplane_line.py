@@ -512,9 +512,11 @@ class LineTracker(Tracker):
         moved back to the end of the echo: the segment's far end, moved to the tip map's
         maximum when the map is confident there, searched from ``tip_window_mm`` behind the
         end to its window ahead of the end's weaker continuation (``reach_mm`` long): weaker
-        shaft evidence moves the tip only where the tip map confirms it. A learned tip that
-        lies past where the needle's echo ends in the image (:func:`echo_end`) is moved back
-        there, and to the tip map's maximum within ``tip_window_mm`` of it."""
+        shaft evidence moves the tip only where the tip map confirms it; with classical
+        features, to where the echo's run ends. A tip that lies past where the needle's echo
+        ends in the image (:func:`echo_end`: a map, or the run of echo, follows the streak of
+        unfocused imaging) is moved back there, and to the tip map's maximum within
+        ``tip_window_mm`` of it."""
         p = self.params
         normal = np.array([-seg.direction[1], seg.direction[0]])
         if normal[1] < 0:
@@ -525,14 +527,12 @@ class LineTracker(Tracker):
             end, used = self._tip_map_max(tip_map, grid, end, seg.direction, reach_mm)
         else:  # the classical echo itself goes on this far (see _reach_mm)
             end = end + reach_mm * seg.direction
-        along = None
-        if self.features.kind == "learned":
-            along = echo_end(frame, seg.start_mm, seg.direction,
-                             float((end - seg.start_mm) @ seg.direction), p.echo_end)
-            if along is not None:
-                end, used = seg.start_mm + along * seg.direction, False
-                if tip_map is not None:
-                    end, used = self._tip_map_max(tip_map, grid, end, seg.direction, 0.0, end)
+        along = echo_end(frame, seg.start_mm, seg.direction,
+                         float((end - seg.start_mm) @ seg.direction), p.echo_end)
+        if along is not None:
+            end, used = seg.start_mm + along * seg.direction, False
+            if tip_map is not None:
+                end, used = self._tip_map_max(tip_map, grid, end, seg.direction, 0.0, end)
         return end + self._offset_mm() * normal, used, along is not None
 
     def _tip_map_max(self, tip_map, grid, end: np.ndarray, d: np.ndarray, reach_mm: float,

@@ -56,7 +56,7 @@ class LineTrackerParams:
     only as the continuation of the needle seen on the frame before (on its axis, within
     ``track_window_deg``/``track_window_mm``, its end inside the tip filter's gate).
     ``echo``: with classical features a line is a needle only where its echo shows along it
-    (:mod:`._inplane_line_echo`). ``echo_end``: with learned features a tip past where the
+    (:mod:`._inplane_line_echo`). ``echo_end``: a tip past where the
     needle's echo ends in the image is moved back there (:mod:`._inplane_echo_end`).
     ``still``: lines seen standing still beside the advancing needle are tissue
     (:mod:`._inplane_still`). ``growing``: a learned mark shorter than ``min_length_mm`` is
