@@ -1,0 +1,102 @@
+"""The `line` tracker's tip on one frame: the needle segment's far end, moved on along the
+line's weaker continuation where the tip map confirms it (learned) or to where the run of
+echo ends (classical), and back to where the needle's echo ends in the image. A mixin of
+:class:`~._inplane_line.LineTracker`, whose state it uses (``params``, ``features`` and the
+frame's memo ``_beyond``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..backends import NeedleLine, WorkingMap, extend_end
+from ..features import Frame
+from ._inplane_echo_end import echo_end
+from ._inplane_geometry import distance_to_edge, sample_grid
+from ._inplane_line_echo import echo_beyond
+from ._inplane_line_params import MAX_DISTANCE_MM
+
+__all__ = ["LineTip"]
+
+
+class LineTip:
+    """The tip of the `line` tracker's needle segment (see the module's doc)."""
+
+    def _offset_mm(self) -> float:
+        """Echo (wall facing the probe) to centre line, along the normal into the tissue."""
+        if self.features.kind == "learned" and \
+                getattr(self.features, "target_reference", "centerline") != "wall":
+            return 0.0
+        return self.params.needle_radius_mm
+
+    def _echo_beyond(self, frame: Frame, inner: np.ndarray, seg: NeedleLine
+                     ) -> tuple[float, float]:
+        """(how far the echo goes on past the end of ``seg``, oriented entry to tip; how far
+        the edge of the view lies past that end), both mm, read once per segment and frame:
+        the validity test and the tip both ask (the memo is emptied with each frame)."""
+        key = (*seg.start_mm, *seg.end_mm)
+        if key not in self._beyond:
+            far = distance_to_edge(inner, frame, seg.end_mm, seg.direction,
+                                   max_mm=MAX_DISTANCE_MM)
+            self._beyond[key] = (echo_beyond(frame, seg, True, far, self.params.echo), far)
+        return self._beyond[key]
+
+    def _reach_mm(self, seg: NeedleLine, wm: WorkingMap, frame: Frame,
+                  inner: np.ndarray) -> float:
+        """How far (mm) a needle's segment continues past its end: on a learned map, on
+        weaker evidence (down to ``learned_extend_level``, Canny's hysteresis; 0 where that
+        continuation reaches the edge of the view, the tip may lie beyond it); with classical
+        features, as far as its echo goes on (:func:`echo_beyond`)."""
+        p = self.params
+        if self.features.kind != "learned":
+            return self._echo_beyond(frame, inner, seg)[0]
+        if p.learned_extend_level >= p.learned_level:
+            return 0.0
+        longer = extend_end(wm, seg, p.learned_extend_level, p.search)
+        if longer is seg or distance_to_edge(inner, frame, longer.end_mm, longer.direction,
+                                             max_mm=p.edge_margin_mm + 1.0) <= p.edge_margin_mm:
+            return 0.0
+        return float(np.linalg.norm(longer.end_mm - seg.end_mm))
+
+    def _tip(self, frame: Frame, seg: NeedleLine, tip_map, grid, reach_mm: float = 0.0
+             ) -> tuple[np.ndarray, bool, bool]:
+        """The tip (x, z) on the centre line, whether the tip map placed it and whether it was
+        moved back to the end of the echo: the segment's far end, moved to the tip map's
+        maximum when the map is confident there, searched from ``tip_window_mm`` behind the
+        end to its window ahead of the end's weaker continuation (``reach_mm`` long): weaker
+        shaft evidence moves the tip only where the tip map confirms it; with classical
+        features, to where the echo's run ends. A tip that lies past where the needle's echo
+        ends in the image (:func:`echo_end`: a map, or the run of echo, follows the streak of
+        unfocused imaging) is moved back there, and to the tip map's maximum within
+        ``tip_window_mm`` of it."""
+        p = self.params
+        normal = np.array([-seg.direction[1], seg.direction[0]])
+        if normal[1] < 0:
+            normal = -normal  # into the tissue (away from the probe)
+        end = seg.end_mm
+        used = False
+        if tip_map is not None:
+            end, used = self._tip_map_max(tip_map, grid, end, seg.direction, reach_mm)
+        else:  # the classical echo itself goes on this far (see _reach_mm)
+            end = end + reach_mm * seg.direction
+        along = echo_end(frame, seg.start_mm, seg.direction,
+                         float((end - seg.start_mm) @ seg.direction), p.echo_end)
+        if along is not None:
+            end, used = seg.start_mm + along * seg.direction, False
+            if tip_map is not None:
+                end, used = self._tip_map_max(tip_map, grid, end, seg.direction, 0.0, end)
+        return end + self._offset_mm() * normal, used, along is not None
+
+    def _tip_map_max(self, tip_map, grid, end: np.ndarray, d: np.ndarray, reach_mm: float,
+                     default: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+        """The tip map's maximum on the line from ``tip_window_mm`` behind ``end`` to its
+        window ahead of ``end`` moved on by ``reach_mm``, where it reaches ``tip_map_min``;
+        else (``default``, or ``end``; False)."""
+        p = self.params
+        back, ahead = p.tip_window_mm
+        s = np.arange(-back, reach_mm + ahead + 1e-9, p.search.work_spacing_mm / 2)
+        pts = end[None] + s[:, None] * d[None]
+        vals = sample_grid(np.asarray(tip_map, np.float32), grid, pts)
+        k = int(np.argmax(vals))
+        if vals[k] >= p.tip_map_min:
+            return pts[k], True
+        return (end if default is None else default), False
