@@ -311,6 +311,32 @@ def test_a_learned_tip_past_the_end_of_the_echo_is_put_where_the_echo_ends():
     assert est.details.tip_at_echo_end and est.to_json()["tip_at_echo_end"] is True
 
 
+def test_a_classical_tip_on_a_saturated_streak_is_put_where_the_reverberations_end():
+    """A saturated needle at 8 degrees from the right edge with three reverberation copies
+    under it, and a streak on its line as bright for 4 mm past its tip, fading over 3 mm
+    more: the run of echo goes on along the streak, the classical tip stops where the copies
+    end (within the echo's 1.5 mm resolution), not 4-7 mm on."""
+    from tests.trackers.test_inplane_line_echo import _draw, _speckle
+
+    im = _speckle(12, shape=(250, 300))
+    a = np.array([29.9, 6.0])  # mm (x, z), at the right edge
+    d = np.array([-np.cos(np.deg2rad(8.0)), np.sin(np.deg2rad(8.0))])
+    down = np.array([d[1], -d[0]])
+    tip_len = 16.0
+    for off, grey in ((0.9, 255), (1.8, 230), (2.7, 200)):
+        _draw(im, a + off * down, a + tip_len * d + off * down, grey)
+    for x in np.arange(0.0, 7.0, 0.1):
+        grey = 255 if x < 4.0 else 255 - 80 * (x - 4.0) / 3.0
+        _draw(im, a + (tip_len + x) * d, a + (tip_len + x + 0.1) * d, grey)
+    _draw(im, a, a + tip_len * d, 255)
+    g = synth.Grid(im.shape, (0.1, 0.1), (0.0, 0.0))
+    est = _tracker("classical").update(Frame(image=im.astype(np.uint8), grid=g, t=0.0))
+    assert est.status == Status.TRACKING, est.reason
+    tip = a + tip_len * d + LineTrackerParams().needle_radius_mm * down
+    assert np.linalg.norm(est.tip_mm - tip) < 1.5, (est.tip_mm, tip)
+    assert est.details.tip_at_echo_end
+
+
 class _MapsSource(_MapSource):
     """A stand-in learned source with one shaft map per frame (by frame index)."""
 
