@@ -25,8 +25,8 @@ over ``shaft_mm`` of shaft next to the entry (after the first ``window_mm``, whe
 evidence starts at the edge of the view): where that mean has fallen ``min_drop_sd`` spreads
 below the shaft's level by the map's tip, the echo ends where it last stood within one spread
 of that level (the start of the fall, not its steepest point), provided the echo line itself
-goes on there within a spread of its own level on the shaft (a streak; a needle leaving the
-plane fades as a whole). The earlier of the two ends is taken.
+goes on there within ``min_drop_sd`` spreads of its own level on the shaft (a streak; a needle
+leaving the plane fades as a whole). The earlier of the two ends is taken.
 """
 
 from __future__ import annotations

@@ -10,8 +10,10 @@ map ``classical_level`` local standard deviations above the surrounding tissue),
 needle is tracked, when a shorter learned mark entering through the edge of the view has grown
 where it was first seen (a needle coming in; :mod:`._inplane_growing`). The tip is the
 segment's end away from the entry, refined by the tip map where the source has one (with
-classical features: moved on to where the echo along the line ends), and a
-constant-velocity Kalman filter on the tip's (x, z) smooths it between frames. A segment that
+classical features: moved on to where the echo along the line ends) and bounded by where the
+needle's echo ends in the image (the streak of unfocused imaging past a tip looks like shaft;
+:mod:`._inplane_line_tip`), and a constant-velocity Kalman filter on the tip's (x, z) smooths
+it between frames. A segment that
 runs across the imaged region from edge to edge shows no tip (a bright tissue interface, or a
 needle whose tip has left the view, or the edge of a capture margin or sector mask) and is not
 taken for one; nor is a segment whose deeper end, where a needle's tip would be, lies at that
