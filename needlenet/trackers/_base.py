@@ -12,6 +12,7 @@ import numpy as np
 
 from ..features import FeatureSource, Frame, FrameError, check_frame
 from ._details import EstimateDetails
+from ._inplane_geometry import zero_margins
 
 __all__ = ["Status", "NeedleEstimate", "Tracker", "RngLike", "frames_from_sequence"]
 
@@ -106,7 +107,7 @@ class Tracker(ABC):
         t0 = time.perf_counter()
         try:
             check_frame(frame)
-            est = self._step(frame)
+            est = self._step(zero_margins(frame))
         except FrameError as exc:
             self.status = Status.LOST if self.status == Status.TRACKING else self.status
             est = NeedleEstimate(t=frame.t, status=self.status, reason=str(exc))

@@ -1,8 +1,17 @@
 """Geometry of the `line` tracker's segments against the frame: whether a segment runs on a
 line, which of its ends is the entry, where the imaged region is (capture margins and sector
-masks are not), and how far a point lies from that region's edge."""
+masks are not), and how far a point lies from that region's edge.
+
+Black is what a margin or the outside of a sector holds: exactly 0 in an image that was
+written as it was formed, a few grey levels after lossy compression (a frame-grabbed video,
+a JPEG screen capture rings around the sector's edge). An 8-bit pixel at or under
+``BLACK_GREY`` counts as black; :func:`zero_margins` sets the margin of such a frame to 0, so
+that everything read from the frame afterwards (the learned model's input, the line contrast,
+the tissue's grey level) sees the margin it would see uncompressed."""
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -10,8 +19,10 @@ import numpy as np
 from ..backends import NeedleLine
 from ..features import Frame
 
-__all__ = ["on_line", "entry_to_tip", "sample_grid", "imaged_region", "distance_to_edge",
-           "AROUND"]
+__all__ = ["on_line", "entry_to_tip", "sample_grid", "imaged_region", "zero_margins",
+           "distance_to_edge", "AROUND", "BLACK_GREY"]
+
+BLACK_GREY = 12  # 8-bit grey levels: JPEG ringing beside a black margin (quality 40: <= 10)
 
 
 def on_line(seg: NeedleLine, point: np.ndarray, direction: np.ndarray, window_deg: float,
@@ -46,33 +57,62 @@ def sample_grid(values: np.ndarray, grid, pts: np.ndarray) -> np.ndarray:
     return out.ravel()
 
 
+def _lit(im: np.ndarray) -> np.ndarray:
+    """Pixels above black (see the module's doc)."""
+    return im > (BLACK_GREY if im.dtype == np.uint8 else 0)
+
+
 def imaged_region(frame: Frame) -> np.ndarray:
     """Where the frame holds an image: not black capture margin or outside a sector. A pixel
-    is blank when at most a fifth of the pixels within 1 mm are non-zero (dark speckle has
-    isolated zeros; a margin is zero throughout), and a blank area is margin only where it
-    reaches the frame's border: a black vessel or cyst inside the image is imaged tissue."""
+    is blank when at most a fifth of the pixels within 1 mm are above black (dark speckle has
+    isolated black pixels; a margin is black throughout), and a blank area is margin only
+    where it reaches the frame's border: a black vessel or cyst inside the image is imaged
+    tissue. Read once per frame."""
+    if "imaged_region" in frame.extras:
+        return frame.extras["imaged_region"]
     im = np.asarray(frame.image)
     dz, dx = frame.grid.spacing_mm
     k = (max(int(round(1.0 / dx)) | 1, 3), max(int(round(1.0 / dz)) | 1, 3))
     if not _blank_on_border(im, k):  # no margin: every blank area lies inside the image
-        return np.ones(im.shape, bool)
-    valid = cv2.blur((im > 0).astype(np.float32), k) > 0.2
+        valid = np.ones(im.shape, bool)
+    else:
+        valid = cv2.blur(_lit(im).astype(np.float32), k) > 0.2
+        if not valid.all():
+            n, labels = cv2.connectedComponents((~valid).astype(np.uint8), connectivity=4)
+            border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0],
+                                               labels[:, -1]]))
+            valid = ~np.isin(labels, border[border > 0])
+    frame.extras["imaged_region"] = valid
+    return valid
+
+
+def zero_margins(frame: Frame) -> Frame:
+    """The 2-D ``frame`` with its margin (outside :func:`imaged_region`) set to 0 where a
+    lossy compression left it a few grey levels above; the frame itself when its margin is 0
+    already (or it has none). The copy keeps the frame's time, index and what was read of it."""
+    if frame.grid.ndim != 2:
+        return frame
+    valid = imaged_region(frame)
     if valid.all():
-        return valid
-    n, labels = cv2.connectedComponents((~valid).astype(np.uint8), connectivity=4)
-    border = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    return ~np.isin(labels, border[border > 0])
+        return frame
+    im = np.asarray(frame.image)
+    outside = ~valid
+    if not np.any(im[outside]):
+        return frame
+    clean = im.copy()
+    clean[outside] = 0
+    return replace(frame, image=clean, extras={"imaged_region": valid})
 
 
 def _blank_on_border(im: np.ndarray, k: tuple[int, int]) -> bool:
     """Whether a pixel on the frame's border is blank by :func:`imaged_region`'s test (the
-    box of ``k`` = (width, height) pixels around it at most a fifth non-zero), reading only
-    the strips along the border that those boxes cover."""
+    box of ``k`` = (width, height) pixels around it at most a fifth above black), reading
+    only the strips along the border that those boxes cover."""
     kx, kz = min(k[0], im.shape[1]), min(k[1], im.shape[0])
     strips = ((im[:kz], 0, None), (im[-kz:], -1, None), (im[:, :kx], None, 0),
               (im[:, -kx:], None, -1))
     for strip, row, col in strips:
-        b = cv2.blur((strip > 0).astype(np.float32), k)
+        b = cv2.blur(_lit(strip).astype(np.float32), k)
         edge = b[row] if row is not None else b[:, col]
         if np.any(edge <= 0.2):
             return True

@@ -433,6 +433,32 @@ def test_a_black_vessel_inside_the_image_is_no_edge_of_the_view():
     assert est.status == Status.TRACKING, est.reason
 
 
+@pytest.mark.parametrize("quality", [40, 75])
+def test_a_compressed_captures_margin_is_still_the_edge_of_the_view(quality):
+    """A JPEG screen capture: the black margin rings a few grey levels above 0 beside the
+    image. It is still margin (set to 0 before anything reads the frame), and a line that
+    starts at its edge enters through it; uncompressed, the same region."""
+    import cv2
+
+    from needlenet.trackers._inplane_geometry import imaged_region, zero_margins
+
+    h, w = 200, 200
+    image = np.random.default_rng(7).integers(40, 120, (h, w)).astype(np.uint8)
+    image[:, 185:] = 0
+    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
+    jpeg = cv2.imdecode(cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])[1],
+                        cv2.IMREAD_GRAYSCALE)
+    assert np.count_nonzero(jpeg[:, 188:]) > 0  # the ringing this is about
+    clean = zero_margins(Frame(image=jpeg, grid=g))
+    assert not np.any(clean.image[:, 188:])
+    region = imaged_region(Frame(image=jpeg, grid=g))
+    # the same region but for the ringing's column or two along the edge
+    assert np.mean(region != imaged_region(Frame(image=image, grid=g))) < 0.01
+    shaft = _line_map(h, w, (30, 184), (120, 94), width=3)
+    est = LineTracker(features=_MapSource(shaft)).update(Frame(image=jpeg, grid=g, t=0.0))
+    assert est.status == Status.TRACKING, est.reason
+
+
 @pytest.mark.parametrize("name, value", [("edge_margin_mm", 2147483648.0),
                                          ("entry_margin_mm", float("nan")),
                                          ("track_window_deg", 0.0)])
