@@ -61,6 +61,10 @@ class LineSearchParams:
                      "explained_mm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        for name in ("work_spacing_mm", "rho_bin_mm", "gap_mm", "explained_mm",
+                     "profile_half_width_mm"):  # distances: a fraction of any image
+            if not 0.0 <= getattr(self, name) <= 100.0:
+                raise ValueError(f"{name} must lie in 0-100 mm, got {getattr(self, name)}")
         if self.max_points < 2 or self.peaks < 1 or self.votes < 1:
             raise ValueError("max_points must be >= 2, peaks and votes >= 1")
 

@@ -54,9 +54,12 @@ class EchoEndParams:
     shaft_mm: float = 4.0
 
     def __post_init__(self) -> None:
+        lengths = (self.window_mm, self.across_mm, self.back_mm, self.ahead_mm, self.shaft_mm,
+                   *self.band_mm)
         if not (self.window_mm > 0 and self.across_mm >= 0 and self.min_drop_sd > 0
                 and self.back_mm > 0 and self.ahead_mm >= 0 and self.shaft_mm > 0
-                and self.band_mm[0] < self.band_mm[1]):
+                and self.band_mm[0] < self.band_mm[1]
+                and all(abs(v) <= 100.0 for v in lengths)):  # a fraction of any image
             raise ValueError(f"echo end settings out of range: {self}")
 
 
