@@ -12,7 +12,7 @@ import numpy as np
 
 from ..features import FeatureSource, Frame, FrameError, check_frame
 from ._details import EstimateDetails
-from ._inplane_geometry import zero_margins
+from ._margins import zero_margins
 
 __all__ = ["Status", "NeedleEstimate", "Tracker", "RngLike", "frames_from_sequence"]
 

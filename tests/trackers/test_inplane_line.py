@@ -440,7 +440,7 @@ def test_a_compressed_captures_margin_is_still_the_edge_of_the_view(quality):
     starts at its edge enters through it; uncompressed, the same region."""
     import cv2
 
-    from needlenet.trackers._inplane_geometry import imaged_region, zero_margins
+    from needlenet.trackers._margins import imaged_region, zero_margins
 
     h, w = 200, 200
     image = np.random.default_rng(7).integers(40, 120, (h, w)).astype(np.uint8)
