@@ -187,6 +187,25 @@ VALIDATION_SPECS = (
                  angle_deg=10, start_mm=52.3, step_mm=1.5, n_frames=10, target_cr=2.0,
                  gauge=22, roughness=2.0, dynamic_range_db=50, tissue_grey=110,
                  feature="shallow, faint, bright display"),
+    # a fourth round: needles beside a bright interface that runs with them, below or above
+    # (specs fixed before any model or tracker was run on them)
+    SequenceSpec("val_lin_right_top_45_interface", "L11-5v", 311, side="right", entry_x_mm=12.0,
+                 angle_deg=45, start_mm=5.0, step_mm=1.3, n_frames=10, target_cr=2.5,
+                 gauge=19, interface=(0.0, 15.5, -45.0), interface_cr=2.3, dynamic_range_db=55,
+                 tissue_grey=85, feature="bright interface 2.5 mm below, parallel"),
+    SequenceSpec("val_lin_left_top_30_interface", "L11-5v", 312, side="left", entry_x_mm=-12.0,
+                 angle_deg=30, start_mm=6.0, step_mm=1.5, n_frames=10, target_cr=2.3,
+                 gauge=20, interface=(0.0, 9.24, 30.0), interface_cr=2.6, dynamic_range_db=60,
+                 gamma=1.1, tissue_grey=80, feature="bright interface 2 mm below, parallel"),
+    SequenceSpec("val_lin_right_side_20_interface", "L11-5v", 313, side="right",
+                 entry_x_mm=35.0, angle_deg=20, start_mm=27.0, step_mm=1.5, n_frames=10,
+                 target_cr=2.6, gauge=18, interface=(0.0, 10.1, -20.0), interface_cr=2.4,
+                 dynamic_range_db=55, tissue_grey=90,
+                 feature="bright interface 2.5 mm above, parallel"),
+    SequenceSpec("val_ph_left_side_40_interface", "P4-2v", 409, side="left", entry_x_mm=-28.0,
+                 angle_deg=40, start_mm=25.0, step_mm=1.6, n_frames=10, target_cr=2.5,
+                 gauge=17, interface=(0.0, 27.4, 40.0), interface_cr=2.5, dynamic_range_db=55,
+                 tissue_grey=85, feature="bright interface 3 mm below, parallel"),
 )
 
 SETS = {"test": SPECS, "validation": VALIDATION_SPECS}
