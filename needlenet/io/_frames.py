@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._colour_marks import fill_colour_marks
 from ._errors import RecordingError
 from ._lazy import FrameStack, is_frame_stack
 from ._limits import check_allocation, check_frame_shape
@@ -118,13 +119,14 @@ def _gray(img: np.ndarray) -> np.ndarray:
 
     if img.ndim == 3:
         code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
-        img = cv2.cvtColor(img, code)
+        img = fill_colour_marks(cv2.cvtColor(img, code), img)
     return img
 
 
 def read_image_folder(path: str | os.PathLike) -> FrameStack:
     """Every image file of a folder, in natural order (``f2.png`` before ``f10.png``), as
-    uint8 gray frames ``(T, H, W)``; colour is converted to gray (OpenCV's BGR luma).
+    uint8 gray frames ``(T, H, W)``; colour is converted to gray (OpenCV's BGR luma), with
+    coloured marks drawn over the image filled in (:mod:`._colour_marks`).
 
     The files are checked here (regular files, headers of a sane size, all alike, the first
     one decoded) and each is decoded when its frame is read: a damaged file found then is a

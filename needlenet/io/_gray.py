@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ._colour_marks import fill_colour_marks
+
 __all__ = ["to_gray_uint8"]
 
 
 def to_gray_uint8(arr: np.ndarray, channels: int) -> tuple[np.ndarray, tuple | None, list]:
-    """Colour to gray (ITU-R BT.601 luma of R, G, B), other types scaled to 0..255; returns
+    """Colour to gray (ITU-R BT.601 luma of R, G, B; 8-bit colour's drawn marks filled in,
+    :mod:`._colour_marks`), other types scaled to 0..255; returns
     (frames, the scaled intensity range or None, notes for the user).
 
     Scaling maps the finite range to 0..255, except that values further beyond the 0.01-99.99
@@ -18,9 +21,14 @@ def to_gray_uint8(arr: np.ndarray, channels: int) -> tuple[np.ndarray, tuple | N
     notes: list[str] = []
     if channels >= 3:
         a = arr[..., :3].astype(np.float32)
-        arr = a[..., 0] * 0.299 + a[..., 1] * 0.587 + a[..., 2] * 0.114
-        if arr.size and float(arr.max()) <= 255.0 and float(arr.min()) >= 0.0:
-            return np.clip(np.rint(arr), 0, 255).astype(np.uint8), None, notes
+        luma = a[..., 0] * 0.299 + a[..., 1] * 0.587 + a[..., 2] * 0.114
+        if luma.size and float(luma.max()) <= 255.0 and float(luma.min()) >= 0.0:
+            gray = np.clip(np.rint(luma), 0, 255).astype(np.uint8)
+            if arr.dtype == np.uint8:
+                for i in range(len(gray)):
+                    gray[i] = fill_colour_marks(gray[i], arr[i])
+            return gray, None, notes
+        arr = luma
     elif channels == 2:
         arr = arr[..., 0]
     if arr.dtype == np.uint8:
