@@ -23,7 +23,11 @@ through the skin or the side of the view and goes in along its axis, so a segmen
 the tissue (its entry end away from the edge of the view) is never taken for a new needle, and
 once a needle has been tracked it is taken only as the continuation of the needle seen on the
 frame before: on its axis, and ending where its tip is tracked (the same needle, partly out of
-the plane). The edge of the view is the edge of the frame, of a black capture margin or of a
+the plane). A new line that enters where the confirmed needle still held by the filter entered
+(``confirm_after_frames`` tip measurements accepted in a row), but is longer than that needle
+could have grown since it was seen, is the needle merged on the map
+with a tissue line that runs on beside it (a bright interface): the frame is `lost`. The edge
+of the view is the edge of the frame, of a black capture margin or of a
 sector mask; a black vessel inside the image is tissue. One needle is tracked: a needle-like
 line seen beside it while it advanced is tissue, and is not taken for the needle when the
 needle leaves the plane (:mod:`._inplane_still`).
@@ -122,10 +126,13 @@ class LineTracker(LineTip, Tracker):
         self._x: np.ndarray | None = None  # (x, z, vx, vz), mm and mm/s
         self._P: np.ndarray | None = None
         self._dir: np.ndarray | None = None  # unit, entry -> tip
+        self._entry_mm: np.ndarray | None = None  # the tracked segment's entry end
+        self._seen_t: float | None = None  # when the tracked needle was last seen
         self._longest_mm = 0.0  # the tracked needle's longest segment
         self._line_point: np.ndarray | None = None
         self._misses = 0
         self._rejects = 0
+        self._accepted_run = 0  # tip measurements accepted by the gate in a row
         self._since_full = 0
 
     @property
@@ -318,6 +325,25 @@ class LineTracker(LineTip, Tracker):
         end = seg.end_mm if float(seg.direction @ self._dir) >= 0 else seg.start_mm
         return self._gate_distance(end) <= chi2_gate(2, self.params.gate_probability)
 
+    def _outgrown(self, seg: NeedleLine, frame: Frame, inner: np.ndarray) -> bool:
+        """Whether ``seg``, another line than the one tracked, enters within
+        ``entry_margin_mm`` of where the confirmed needle still held by the filter entered
+        (``confirm_after_frames``) but is longer
+        than that needle could have grown since it was last seen: at the filter's speed prior
+        (``initial_speed_std_mm_s``, at its gate's probability) plus the search's bridged gap.
+        That is the same insertion merged on the map with a tissue line that runs on beside it
+        (an interface), not the needle's new line."""
+        p = self.params
+        if self._x is None or self._entry_mm is None or self._seen_t is None or \
+                self._accepted_run < p.confirm_after_frames:
+            return False
+        fresh = entry_to_tip(seg, frame, p.orientation_min_angle_deg, inner)
+        if float(np.linalg.norm(fresh.start_mm - self._entry_mm)) > p.entry_margin_mm:
+            return False
+        speed = p.initial_speed_std_mm_s * chi2_gate(1, p.gate_probability)
+        reach = speed * max(frame.t - self._seen_t, self.dt_s) + p.search.gap_mm
+        return seg.length_mm - self._longest_mm > reach
+
     def _gate_distance(self, z: np.ndarray) -> float:
         """Mahalanobis distance of tip measurement ``z`` from the filter's prediction."""
         y = z - self._x[:2]
@@ -342,13 +368,18 @@ class LineTracker(LineTip, Tracker):
             self._growing.clear()
         elif not self._grown(seg, priority):
             return self._missed(frame, seg)
-        if priority(seg):  # it enters through the edge of the view: the insertion's axis
-            self._axis = (0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy())
         if new_line and self._dir is not None:
+            if self._outgrown(seg, frame, inner):
+                return self._missed(frame, seg, (
+                    f"no needle: the {seg.length_mm:.0f} mm line enters where the needle "
+                    f"entered, {seg.length_mm - self._longest_mm:.0f} mm longer than the needle "
+                    "could have grown since it was seen"))
             self._forget()  # another line than the one tracked: start anew
         seg = self._orient(seg, frame, inner)
         tip_mm, used_tip_map, at_echo_end = self._tip(frame, seg, lik.tip, map_grid,
                                                       self._reach_mm(seg, wm, frame, inner))
+        if priority(seg):  # it enters through the edge of the view: the insertion's axis
+            self._axis = (0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy())
         self._misses = 0
         measured = tip_mm.copy()
         accepted, restarted = self._filter(tip_mm)
@@ -448,16 +479,16 @@ class LineTracker(LineTip, Tracker):
         self._growing.clear()
         return True
 
-    def _missed(self, frame: Frame, seg: NeedleLine) -> NeedleEstimate:
+    def _missed(self, frame: Frame, seg: NeedleLine, reason: str | None = None) -> NeedleEstimate:
         had = self._x is not None
         self._misses += 1
         if self._misses >= self.params.forget_after_frames:
             self._forget()
-        if seg:
+        if reason is None and seg:
             reason = (f"no needle: the best line's segment is {seg.length_mm:.1f} mm long with "
                       f"mean evidence {seg.support:.2f} (needs {self.params.min_length_mm:g} mm "
                       f"at {self._level():g})")
-        else:
+        elif reason is None:
             reason = f"no needle: {seg.reason}"
         status = Status.LOST if had or self.status == Status.TRACKING else Status.SEARCHING
         return NeedleEstimate(t=frame.t, status=status, reason=reason)
@@ -482,12 +513,14 @@ class LineTracker(LineTip, Tracker):
             self._start(z)
             return None, False
         if self._gate_distance(z) > chi2_gate(2, p.gate_probability):
+            self._accepted_run = 0
             self._rejects += 1
             if self._rejects >= p.reinit_after_rejects:
                 self._start(z)
                 return False, True
             return False, False
         self._rejects = 0
+        self._accepted_run += 1
         res = update(self._x, self._P, z, R, H)
         self._x, self._P = res.x, res.P
         return True, False
@@ -497,11 +530,14 @@ class LineTracker(LineTip, Tracker):
         self._x = np.array([z[0], z[1], 0.0, 0.0])
         self._P = np.diag([p.measurement_std_mm ** 2] * 2 + [p.initial_speed_std_mm_s ** 2] * 2)
         self._rejects = 0
+        self._accepted_run = 0
 
     def _estimate(self, frame: Frame, seg: NeedleLine, measured_mm: np.ndarray,
                   used_tip_map: bool, accepted: bool | None, restarted: bool,
                   at_echo_end: bool) -> NeedleEstimate:
         self._dir = seg.direction.copy()
+        self._entry_mm = seg.start_mm.copy()
+        self._seen_t = frame.t
         self._longest_mm = max(self._longest_mm, seg.length_mm)
         self._line_point = 0.5 * (seg.start_mm + seg.end_mm)
         normal = np.array([-seg.direction[1], seg.direction[0]])
