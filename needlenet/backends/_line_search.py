@@ -85,6 +85,8 @@ class NeedleLine:
     support: float = 0.0
     score: float = 0.0
     profile: np.ndarray | None = field(default=None, repr=False)
+    refused: NeedleLine | None = field(default=None, repr=False)
+    # of a false-valued result: the strongest segment the validity test refused
 
     def __bool__(self) -> bool:
         return self.found
@@ -379,5 +381,5 @@ def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,
         if best or rejected is None:
             break
     if not best and rejected is not None:
-        return NeedleLine(False, rejected[1], profile=rejected[0].profile)
+        return NeedleLine(False, rejected[1], profile=rejected[0].profile, refused=rejected[0])
     return best

@@ -26,7 +26,9 @@ frame before: on its axis, and ending where its tip is tracked (the same needle,
 the plane). A new line that enters where the confirmed needle still held by the filter entered
 (``confirm_after_frames`` tip measurements accepted in a row), but is longer than that needle
 could have grown since it was seen, is the needle merged on the map
-with a tissue line that runs on beside it (a bright interface): the frame is `lost`. The edge
+with a tissue line that runs on beside it (a bright interface): the frame is `lost`. A
+confirmed needle seen running on out of view along its line (its tip has left the view) is
+`lost` too, and while it is seen so no other line is taken for it: one needle is there. The edge
 of the view is the edge of the frame, of a black capture margin or of a
 sector mask; a black vessel inside the image is tissue. One needle is tracked: a needle-like
 line seen beside it while it advanced is tissue, and is not taken for the needle when the
@@ -133,6 +135,7 @@ class LineTracker(LineTip, Tracker):
         self._misses = 0
         self._rejects = 0
         self._accepted_run = 0  # tip measurements accepted by the gate in a row
+        self._out_of_sight = False  # the tracked needle was last seen running out of view
         self._since_full = 0
 
     @property
@@ -302,7 +305,23 @@ class LineTracker(LineTip, Tracker):
         def priority(seg: NeedleLine) -> int:
             return int(enters(seg))
 
-        return check, priority, looks
+        def shares_entry(seg: NeedleLine) -> bool:
+            """It enters within ``entry_margin_mm`` of where the tracked needle entered."""
+            if self._entry_mm is None:
+                return False
+            fresh = entry_to_tip(seg, frame, p.orientation_min_angle_deg, inner)
+            return float(np.linalg.norm(fresh.start_mm - self._entry_mm)) <= p.entry_margin_mm
+
+        def runs_out(seg: NeedleLine) -> bool:
+            """Its deeper end (either end of a near-horizontal one) lies at the edge of the
+            view: a needle whose tip is out of view, if it is a needle."""
+            a, b, _ = ends(seg)
+            d = seg.direction
+            if abs(d[1]) < sin_min:
+                return min(a, b) <= p.edge_margin_mm
+            return (b if d[1] > 0 else a) <= p.edge_margin_mm
+
+        return check, priority, looks, runs_out, shares_entry
 
     def _continues_axis(self, seg: NeedleLine) -> bool:
         """Whether a segment lies on the axis of the needle tracked on the frame before. A
@@ -325,7 +344,7 @@ class LineTracker(LineTip, Tracker):
         end = seg.end_mm if float(seg.direction @ self._dir) >= 0 else seg.start_mm
         return self._gate_distance(end) <= chi2_gate(2, self.params.gate_probability)
 
-    def _outgrown(self, seg: NeedleLine, frame: Frame, inner: np.ndarray) -> bool:
+    def _outgrown(self, seg: NeedleLine, t: float, shares_entry) -> bool:
         """Whether ``seg``, another line than the one tracked, enters within
         ``entry_margin_mm`` of where the confirmed needle still held by the filter entered
         (``confirm_after_frames``) but is longer
@@ -337,11 +356,10 @@ class LineTracker(LineTip, Tracker):
         if self._x is None or self._entry_mm is None or self._seen_t is None or \
                 self._accepted_run < p.confirm_after_frames:
             return False
-        fresh = entry_to_tip(seg, frame, p.orientation_min_angle_deg, inner)
-        if float(np.linalg.norm(fresh.start_mm - self._entry_mm)) > p.entry_margin_mm:
+        if not shares_entry(seg):
             return False
         speed = p.initial_speed_std_mm_s * chi2_gate(1, p.gate_probability)
-        reach = speed * max(frame.t - self._seen_t, self.dt_s) + p.search.gap_mm
+        reach = speed * max(t - self._seen_t, self.dt_s) + p.search.gap_mm
         return seg.length_mm - self._longest_mm > reach
 
     def _gate_distance(self, z: np.ndarray) -> float:
@@ -358,18 +376,19 @@ class LineTracker(LineTip, Tracker):
         dt = self._update_dt(frame.t)
         lik, map_grid = self.features.native_likelihood(frame)
         self._beyond: dict = {}  # _echo_beyond's memo for this frame
+        self._out_of_view = False  # set by _search: the tracked needle's tip is out of view
         inner = self._inner_region(frame)
         wm = self._evidence(lik.shaft, map_grid, inner)
         if self._x is not None:
             self._x, self._P = predict(self._x, self._P, *self._motion(dt))
-        is_valid, priority, looks = self._validity(frame, inner)
-        seg, new_line = self._search(wm, is_valid, priority)
+        is_valid, priority, looks, runs_out, shares_entry = self._validity(frame, inner)
+        seg, new_line = self._search(wm, is_valid, priority, runs_out, shares_entry)
         if self._is_needle(seg):
             self._growing.clear()
         elif not self._grown(seg, priority):
-            return self._missed(frame, seg)
+            return self._missed(frame, seg, keep=self._out_of_view)
         if new_line and self._dir is not None:
-            if self._outgrown(seg, frame, inner):
+            if self._outgrown(seg, frame.t, shares_entry):
                 return self._missed(frame, seg, (
                     f"no needle: the {seg.length_mm:.0f} mm line enters where the needle "
                     f"entered, {seg.length_mm - self._longest_mm:.0f} mm longer than the needle "
@@ -402,7 +421,8 @@ class LineTracker(LineTip, Tracker):
         Q[np.ix_([1, 3], [1, 3])] = blk
         return F, Q
 
-    def _search(self, wm: WorkingMap, is_valid, priority) -> tuple[NeedleLine, bool]:
+    def _search(self, wm: WorkingMap, is_valid, priority, runs_out,
+                shares_entry) -> tuple[NeedleLine, bool]:
         """The needle segment of this frame, and whether it is another line than the one
         tracked (the track then starts anew). While tracking, the window around the last line
         is searched, and every ``full_search_every_frames`` frames (every frame until the
@@ -434,13 +454,36 @@ class LineTracker(LineTip, Tracker):
         settled = self._longest_mm >= p.settled_length_mm
         if self._is_needle(near) and self._since_full < p.full_search_every_frames and settled:
             return near, False
+        if self._runs_out_on_axis(near, runs_out):
+            self._since_full = 0
+            return near, False
         self._since_full = 0
         other = full()
         if self._is_needle(near) and not (self._is_needle(other) and (
                 priority(other) > priority(near) or (priority(other) == priority(near) and
                                                      other.score > p.switch_ratio * near.score))):
             return near, False
+        self._runs_out_on_axis(other, runs_out)
+        if self._out_of_sight and self._is_needle(other) and not self._same_line(other) and \
+                not shares_entry(other):
+            return NeedleLine(False, (
+                f"the {other.length_mm:.0f} mm line is not taken for the needle: the needle "
+                "tracked runs on out of view, and one needle is there")), False
         return other, not self._same_line(other)
+
+    def _runs_out_on_axis(self, seg: NeedleLine, runs_out) -> bool:
+        """Whether the search result ``seg`` is the confirmed needle (``confirm_after_frames``)
+        refused because it runs on out of view along its tracked line: its tip has left the
+        view, and until it is seen again or forgotten no other line is taken for it (one
+        needle is there). Sets ``_out_of_view`` for this frame and ``_out_of_sight`` until
+        then."""
+        p = self.params
+        r = seg.refused
+        if seg or r is None or self._accepted_run < p.confirm_after_frames or \
+                not runs_out(r) or not self._same_line(r):
+            return False
+        self._out_of_view = self._out_of_sight = True
+        return True
 
     def _expected_thetas(self) -> np.ndarray | None:
         """Line directions within ``angle_window_deg`` of the expected insertion angle, from
@@ -479,9 +522,14 @@ class LineTracker(LineTip, Tracker):
         self._growing.clear()
         return True
 
-    def _missed(self, frame: Frame, seg: NeedleLine, reason: str | None = None) -> NeedleEstimate:
+    def _missed(self, frame: Frame, seg: NeedleLine, reason: str | None = None,
+                keep: bool = False) -> NeedleEstimate:
+        """A frame without the needle: ``lost`` (``searching`` before any detection). The
+        track is forgotten after ``forget_after_frames`` such frames in a row, except while
+        ``keep``: the tracked needle is seen running on out of view."""
         had = self._x is not None
-        self._misses += 1
+        if not keep:
+            self._misses += 1
         if self._misses >= self.params.forget_after_frames:
             self._forget()
         if reason is None and seg:
@@ -536,6 +584,7 @@ class LineTracker(LineTip, Tracker):
                   used_tip_map: bool, accepted: bool | None, restarted: bool,
                   at_echo_end: bool) -> NeedleEstimate:
         self._dir = seg.direction.copy()
+        self._out_of_sight = False
         self._entry_mm = seg.start_mm.copy()
         self._seen_t = frame.t
         self._longest_mm = max(self._longest_mm, seg.length_mm)

@@ -1,0 +1,24 @@
+"""A needle whose tip has left the view runs on across it: the line tracker reports it `lost`
+and takes no other line for it while its line is seen running out (one needle is there)."""
+
+import numpy as np
+import pytest
+
+import synth
+
+
+def test_needle_running_out_of_view_is_lost_and_no_tissue_line_is_taken_for_it():
+    pytest.importorskip("onnxruntime")
+    from needlenet.trackers import Status, make_tracker
+
+    # 14 G from the top right at 45 degrees; its tip leaves the view through the left edge on
+    # frame 31. The track forgotten after five frames of the needle running edge to edge, a
+    # 5 mm tissue line near the entry was taken for a new needle (frames 32, 33 and 39).
+    seq = synth.generate("inplane", seed=13, frames=40, start_length_mm=35.0)
+    visible = np.asarray(seq.visible, bool)
+    assert visible[:31].all() and not visible[31:].any()
+    est = make_tracker("inplane", "line", "learned", seed=0).run(seq)
+    tracking = np.array([e.status == Status.TRACKING for e in est])
+    assert tracking[:20].all()
+    assert not tracking[~visible].any()
+    assert all(e.status == Status.LOST for e in est[31:])
