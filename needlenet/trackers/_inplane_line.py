@@ -27,8 +27,9 @@ the plane). A new line that enters where the confirmed needle still held by the 
 (``confirm_after_frames`` tip measurements accepted in a row), but is longer than that needle
 could have grown since it was seen, is the needle merged on the map
 with a tissue line that runs on beside it (a bright interface): the frame is `lost`. A
-confirmed needle seen running on out of view along its line (its tip has left the view) is
-`lost` too, and while it is seen so no other line is taken for it: one needle is there. The edge
+confirmed needle seen running on out of view along its line (its tip has left the view), or
+whose weaker continuation on a learned map runs on to the edge of the view, is `lost` too,
+and while it is seen so no other line is taken for it: one needle is there. The edge
 of the view is the edge of the frame, of a black capture margin or of a
 sector mask; a black vessel inside the image is tissue. One needle is tracked: a needle-like
 line seen beside it while it advanced is tissue, and is not taken for the needle when the
@@ -395,8 +396,15 @@ class LineTracker(LineTip, Tracker):
                     "could have grown since it was seen"))
             self._forget()  # another line than the one tracked: start anew
         seg = self._orient(seg, frame, inner)
-        tip_mm, used_tip_map, at_echo_end = self._tip(frame, seg, lik.tip, map_grid,
-                                                      self._reach_mm(seg, wm, frame, inner))
+        reach, runs_on = self._reach_mm(seg, wm, frame, inner)
+        if runs_on and self._accepted_run >= self.params.confirm_after_frames:
+            # the confirmed needle's weaker continuation runs on to the edge: where the map
+            # fades at depth while the needle goes on, its tip is out of view
+            self._out_of_view = self._out_of_sight = True
+            return self._missed(frame, seg, (
+                f"no needle tip in view: the {seg.length_mm:.0f} mm needle's weaker "
+                "continuation on the map runs on to the edge of the view"), keep=True)
+        tip_mm, used_tip_map, at_echo_end = self._tip(frame, seg, lik.tip, map_grid, reach)
         if priority(seg):  # it enters through the edge of the view: the insertion's axis
             self._axis = (0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy())
         self._misses = 0

@@ -41,21 +41,24 @@ class LineTip:
         return self._beyond[key]
 
     def _reach_mm(self, seg: NeedleLine, wm: WorkingMap, frame: Frame,
-                  inner: np.ndarray) -> float:
-        """How far (mm) a needle's segment continues past its end: on a learned map, on
-        weaker evidence (down to ``learned_extend_level``, Canny's hysteresis; 0 where that
+                  inner: np.ndarray) -> tuple[float, bool]:
+        """How far (mm) a needle's segment continues past its end, and whether a learned
+        segment's continuation runs on to the edge of the view: on a learned map, on weaker
+        evidence (down to ``learned_extend_level``, Canny's hysteresis; 0 where that
         continuation reaches the edge of the view, the tip may lie beyond it); with classical
         features, as far as its echo goes on (:func:`echo_beyond`)."""
         p = self.params
         if self.features.kind != "learned":
-            return self._echo_beyond(frame, inner, seg)[0]
+            return self._echo_beyond(frame, inner, seg)[0], False
         if p.learned_extend_level >= p.learned_level:
-            return 0.0
+            return 0.0, False
         longer = extend_end(wm, seg, p.learned_extend_level, p.search)
-        if longer is seg or distance_to_edge(inner, frame, longer.end_mm, longer.direction,
-                                             max_mm=p.edge_margin_mm + 1.0) <= p.edge_margin_mm:
-            return 0.0
-        return float(np.linalg.norm(longer.end_mm - seg.end_mm))
+        if longer is seg:
+            return 0.0, False
+        if distance_to_edge(inner, frame, longer.end_mm, longer.direction,
+                            max_mm=p.edge_margin_mm + 1.0) <= p.edge_margin_mm:
+            return 0.0, True
+        return float(np.linalg.norm(longer.end_mm - seg.end_mm)), False
 
     def _tip(self, frame: Frame, seg: NeedleLine, tip_map, grid, reach_mm: float = 0.0
              ) -> tuple[np.ndarray, bool, bool]:

@@ -22,3 +22,22 @@ def test_needle_running_out_of_view_is_lost_and_no_tissue_line_is_taken_for_it()
     assert tracking[:20].all()
     assert not tracking[~visible].any()
     assert all(e.status == Status.LOST for e in est[31:])
+
+
+def test_needle_fading_on_the_map_before_the_edge_is_lost_once_its_tip_leaves():
+    pytest.importorskip("onnxruntime")
+    from needlenet.trackers import Status, make_tracker
+
+    # 14 G from the top right at 35 degrees; its tip leaves the view on frame 12. The shaft
+    # map's confident evidence ends 3 mm before the left edge (the needle fades on the map at
+    # 26 mm depth) and its weaker continuation runs on to the edge: the segment's end stood
+    # still there as a tip, 3-24 mm behind the needle's, on every frame from 11 on.
+    seq = synth.generate("inplane", seed=21, frames=40, start_length_mm=40.0)
+    visible = np.asarray(seq.visible, bool)
+    assert visible[:12].all() and not visible[12:].any()
+    est = make_tracker("inplane", "line", "learned", seed=0).run(seq)
+    tracking = np.array([e.status == Status.TRACKING for e in est])
+    assert tracking[:5].all()
+    assert not tracking[~visible].any()
+    err = [np.linalg.norm(e.tip_mm - t) for e, t in zip(est, seq.tip_mm) if e.tip_mm is not None]
+    assert max(err) < 1.0
