@@ -11,13 +11,15 @@ from .specs import PROBES
 
 __all__ = ["AXIAL_PROBES", "AXIAL_SPECS", "ELEVATION", "AxialSpec", "elevation_fwhm_mm"]
 
-# The in-plane probes (same transmits, compounding and pixels) on windows around the needle's
+# The in-plane probes (same transmits and compounding) on windows around the needle's
 # cross-section: every slice needs its own tissue, so the image is kept to what the tracker
-# needs around the needle (15 x 15 mm on the L11-5v, a 50-degree sector to 36 mm on the P4-2v).
+# needs around the needle (15 x 15 mm on the L11-5v, a 44-degree sector to 34 mm on the
+# P4-2v). The P4-2v's pixels are 0.25 mm (its speckle is ~0.6 mm deep and wider, 2.7 MHz),
+# which keeps the set's files small (sequence files store 8-bit frames uncompressed).
 AXIAL_PROBES = {
     "L11-5v": replace(PROBES["L11-5v"], x_range_mm=(-7.5, 7.5), z_range_mm=(5.0, 20.0)),
-    "P4-2v": replace(PROBES["P4-2v"], x_range_mm=(-15.3, 15.3), z_range_mm=(0.0, 36.0),
-                     sector_half_angle_deg=25.0),
+    "P4-2v": replace(PROBES["P4-2v"], spacing_mm=0.25, x_range_mm=(-12.75, 12.75),
+                     z_range_mm=(0.0, 34.0), sector_half_angle_deg=22.0),
 }
 
 # Elevation aperture height and lens focus (mm) of the two probes (Verasonics data sheets;
