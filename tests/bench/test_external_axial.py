@@ -125,3 +125,13 @@ def test_the_bench_runs_on_the_committed_set(committed):
     md = ext.markdown({"rows": rows}, {"cpu": "x", "cores": 2})
     assert "| **pooled** |" in md and "tip prediction" in md
     assert out["data"] == str(axial_data_dir())
+
+
+def test_a_model_of_another_modality_is_refused_for_the_axial_set(capsys):
+    from importlib import resources
+
+    from needlenet.cli import main
+
+    model = str(resources.files("needlenet").joinpath("models", "inplane.onnx"))
+    assert main(["bench", "external", "--data", str(axial_data_dir()), "--model", model]) == 2
+    assert "is a 'inplane' model, not 'axial'" in capsys.readouterr().err
