@@ -11,7 +11,8 @@ angle and no gauge given, with classical and with learned features. Per sequence
 
 A needle frame has the needle visible (label ``visible``: the tip in the image with at least
 3 mm of shaft in view); a needle-free frame has no needle in it at all (tip label NaN). The set
-is for testing only: nothing is trained or tuned on it.
+is for testing only: nothing is trained or tuned on it. A set of axial sequence files (``--data
+needlenet/data/external_axial``) runs the axial tracker instead (:mod:`._external_axial`).
 """
 
 from __future__ import annotations
@@ -129,19 +130,27 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
         directory: str | Path | None = None, model: str | Path | None = None) -> dict:
     """Track every sequence of the set with classical and learned features; one row per
     sequence and features, then one pooled row per features. ``directory``: another set of
-    labelled in-plane sequence files (every ``.npz`` in it, all of them even with ``quick``);
-    ``model``: the learned features' ONNX model (default: the shipped one)."""
+    labelled sequence files (every ``.npz`` in it, all of them even with ``quick``), all
+    in-plane or all axial; ``model``: the learned features' ONNX model (default: the shipped
+    one)."""
     from ._trackers import _feature_kinds, _tier
 
     tier = _tier(quick, tier)
     rows = [] if rows is None else rows
     names = QUICK_SEQUENCES if tier == "quick" and directory is None else None
     seqs = external_sequences(directory, names)
+    modality = seqs[0][1].modality if seqs and seqs[0][1].modality == "axial" else "inplane"
     for name, seq in seqs:
-        if seq.modality != "inplane":
+        if seq.modality != modality:
             raise ValueError(f"bench external: {name}.npz holds a {seq.modality!r} sequence; "
-                             "the suite tracks in-plane sequences")
+                             f"the suite tracks a set of {modality} sequences (the set's "
+                             f"first file is {seqs[0][0]}.npz)")
     model = None if model is None else str(model)
+    if modality == "axial":
+        from ._external_axial import run_axial_set
+
+        out = run_axial_set(seqs, seed, log, rows, model)
+        return {**out, "data": str(Path(directory) if directory is not None else data_dir())}
     log(f"  external: {len(seqs)} sequences, {sum(s.n_frames for _, s in seqs)} frames"
         + (f", learned features from {model}" if model else ""))
 
@@ -191,6 +200,10 @@ def _fmt(v, digits: int = 2) -> str:
 
 
 def markdown(result: dict, machine: dict) -> str:
+    if any(r.get("tracker") == "axial" for r in result["rows"]):
+        from ._external_axial import markdown_axial
+
+        return markdown_axial(result, machine)
     lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
              "Default in-plane tracker (no angle, no gauge given). Tip error over needle frames "
              "reported `tracking`; tracked: needle frames reported `tracking`; false: "

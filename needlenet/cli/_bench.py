@@ -23,12 +23,13 @@ def add_parser(sub) -> None:
     p.add_argument("--report", help="write a report directory: report.md, results.json, plots")
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--data", metavar="DIR",
-                   help="external suite: a directory of labelled in-plane sequence files "
-                        "(.npz, needlenet's sequence format) to run instead of the shipped "
-                        "PyMUST set, e.g. your own labelled recordings")
+                   help="external suite: a directory of labelled in-plane (or axial) "
+                        "sequence files (.npz, needlenet's sequence format) to run instead of "
+                        "the shipped in-plane PyMUST set, e.g. your own labelled recordings or "
+                        "the shipped axial set needlenet/data/external_axial")
     p.add_argument("--model", metavar="F.onnx",
-                   help="external suite: the in-plane model for the learned features "
-                        "(default: the shipped one)")
+                   help="external suite: the in-plane (axial, for an axial set) model for the "
+                        "learned features (default: the shipped one)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing --json file or report")
     p.set_defaults(func=run)
@@ -52,8 +53,15 @@ def run(args) -> int:
     if args.model is not None:
         from ..features import learned_features
 
+        modality = "inplane"
+        if args.data is not None:
+            first = sorted(Path(args.data).glob("*.npz"))[:1]
+            if first:
+                from synth import load_sequence
+
+                modality = "axial" if load_sequence(first[0]).modality == "axial" else "inplane"
         try:  # the checks every model passes before it tracks anything
-            learned_features("inplane", args.model)
+            learned_features(modality, args.model)
         except ValueError as exc:  # ModelError included
             raise CLIError(f"bench external: --model: {exc}") from None
     try:

@@ -173,8 +173,10 @@ def test_bad_external_options_are_refused_before_work(argv, message, capsys):
     assert message in capsys.readouterr().err
 
 
-def test_a_set_with_another_modality_is_refused(tmp_path):
+def test_a_set_of_mixed_modalities_is_refused(tmp_path):
     seq = synth.generate("axial", seed=1, insertion_mm=12.0)
     synth.save_sequence(seq, tmp_path / "ax.npz")
+    inplane = synth.generate("inplane", seed=4, frames=2, width_mm=20, depth_mm=25)
+    synth.save_sequence(inplane, tmp_path / "a_in.npz")
     with pytest.raises(ValueError, match="ax.npz holds a 'axial' sequence"):
         ext.run(tier="quick", log=lambda m: None, directory=tmp_path)

@@ -1,4 +1,4 @@
 """The generator of the external in-plane test set (``python -m
-needlenet.bench.external.generate``). It needs PyMUST (``pip install 'needlenet[external]'``),
-which only its ``generate`` module imports; the committed set lives in
-``needlenet/data/external``."""
+needlenet.bench.external.generate``) and of the axial one (``--set axial``). It needs PyMUST
+(``pip install 'needlenet[external]'``), which only its generator modules import; the committed
+sets live in ``needlenet/data/external`` and ``needlenet/data/external_axial``."""

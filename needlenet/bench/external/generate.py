@@ -1,8 +1,9 @@
 """The external in-plane test set: needle sequences simulated with PyMUST, not with synth.
 
 Run ``python -m needlenet.bench.external.generate --out DIR [--only NAME ...]``; it writes one
-sequence file per entry of :data:`SPECS` (``DIR/NAME.npz``). PyMUST (``pip install
-'needlenet[external]'``) is imported here only; the runtime never needs it.
+sequence file per entry of :data:`SPECS` (``DIR/NAME.npz``); ``--set axial`` writes the axial
+set instead (:mod:`.axial_generate`). PyMUST (``pip install
+'needlenet[external]'``) is imported by the generator only; the runtime never needs it.
 
 Image formation, per sequence and per transmit (PyMUST ``simus``, 2D, a linear model with single
 scattering, so the RF of a sum of scatterer sets is the sum of their RFs):
@@ -88,30 +89,23 @@ def _local_contrast(image: np.ndarray, without: np.ndarray, idx: np.ndarray) -> 
     return float(image.reshape(-1)[idx].astype(float).mean() / max(bg, 1e-9))
 
 
-def _compose(sim: dict, spec: SequenceSpec):
-    """Frames, labels and the achieved contrast of a simulated sequence."""
-    dom, comp, needle = sim["dom"], sim["comp"], sim["needle"]
-    grid = synth.Grid((dom.nz, dom.nx), tuple(dom.spacing_mm), tuple(dom.origin_mm))
-    T = spec.n_frames
-    # TGC: a fixed gain per depth (per radius for sectors) that flattens the tissue's median
-    tissue_env = np.abs(comp["tissue"])
-    prof = np.median(tissue_env, axis=1)
+def _tgc_gain(tissue_iq: np.ndarray, dom) -> np.ndarray:
+    """TGC: a fixed gain per depth (per radius for sectors) that flattens the tissue's median
+    envelope; (n_rows, 1) on the beamforming grid."""
+    prof = np.median(np.abs(tissue_iq), axis=1)
     step = np.diff(dom.bf_z[:, 0])[0] if not dom.sector else dom.r[1] - dom.r[0]
     prof = ndimage.gaussian_filter1d(prof, sigma=1.0 / step, mode="nearest")
-    gain = (1.0 / np.maximum(prof, prof.max() * 1e-6))[:, None]
+    return (1.0 / np.maximum(prof, prof.max() * 1e-6))[:, None]
 
-    def env_image(iq):
-        return dom.to_image(np.abs(iq) * gain)
 
-    valid = dom.valid
-    base = comp["tissue"] + sim["noise"][0]
-    base_env = env_image(base)
+def _white_level(base_env: np.ndarray, valid: np.ndarray, spec) -> float:
+    """The display gain (dB of white) that puts the tissue's mean grey at
+    ``spec.tissue_grey`` (mean grey falls as white rises)."""
 
     def mean_grey(white_db):
         return float(_grey(base_env, white_db, spec)[valid].mean())
 
     ref = 20 * np.log10(np.percentile(base_env[valid], 50))
-    # the display gain: tissue mean grey as the spec asks (mean grey falls as white rises)
     lo, hi = ref - 10.0, ref + spec.dynamic_range_db + 30.0
     for _ in range(50):
         mid = 0.5 * (lo + hi)
@@ -119,7 +113,23 @@ def _compose(sim: dict, spec: SequenceSpec):
             lo = mid
         else:
             hi = mid
-    white = 0.5 * (lo + hi)
+    return 0.5 * (lo + hi)
+
+
+def _compose(sim: dict, spec: SequenceSpec):
+    """Frames, labels and the achieved contrast of a simulated sequence."""
+    dom, comp, needle = sim["dom"], sim["comp"], sim["needle"]
+    grid = synth.Grid((dom.nz, dom.nx), tuple(dom.spacing_mm), tuple(dom.origin_mm))
+    T = spec.n_frames
+    gain = _tgc_gain(comp["tissue"], dom)
+
+    def env_image(iq):
+        return dom.to_image(np.abs(iq) * gain)
+
+    valid = dom.valid
+    base = comp["tissue"] + sim["noise"][0]
+    base_env = env_image(base)
+    white = _white_level(base_env, valid, spec)
 
     iface_scale = 0.0
     if spec.interface is not None:
@@ -273,9 +283,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m needlenet.bench.external.generate",
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, type=Path, help="directory for the .npz files")
-    ap.add_argument("--set", choices=sorted(SETS), default="test",
-                    help="the test set (needlenet/data/external) or the validation set for "
-                         "choosing between models (default: test)")
+    ap.add_argument("--set", choices=sorted(SETS) + ["axial"], default="test",
+                    help="the test set (needlenet/data/external), the validation set for "
+                         "choosing between models, or the axial test set "
+                         "(needlenet/data/external_axial) (default: test)")
     ap.add_argument("--only", nargs="+", metavar="NAME", help="generate these sequences only")
     ap.add_argument("--frames", type=int, help="override the frame count (quick looks only)")
     ap.add_argument("--scatterers-per-cell", type=float,
@@ -286,7 +297,13 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         print("the generator needs PyMUST: pip install 'needlenet[external]'", file=sys.stderr)
         return 2
-    chosen = SETS[args.set]
+    if args.set == "axial":
+        from .axial_generate import generate_axial
+        from .axial_specs import AXIAL_SPECS
+
+        chosen, make = AXIAL_SPECS, generate_axial
+    else:
+        chosen, make = SETS[args.set], generate
     names = {s.name for s in chosen}
     if args.only:
         unknown = sorted(set(args.only) - names)
@@ -298,8 +315,8 @@ def main(argv: list[str] | None = None) -> int:
     for spec in specs:
         if args.frames:
             spec = replace(spec, n_frames=args.frames)
-        generate(spec, args.out, log=lambda m: print(m, flush=True),
-                 scatterers_per_cell=args.scatterers_per_cell)
+        make(spec, args.out, log=lambda m: print(m, flush=True),
+             scatterers_per_cell=args.scatterers_per_cell)
     print(f"done: {len(specs)} sequences in {time.perf_counter() - t0:.0f} s", flush=True)
     return 0
 
