@@ -23,7 +23,7 @@ def test_merged_line_longer_than_the_needle_could_grow_is_lost_not_tracked():
     est = make_tracker("inplane", "line", "learned", seed=0).run(seq)
     tracked = np.array([e.status == Status.TRACKING for e in est])
     err = np.array([np.linalg.norm(e.tip_mm - t) if e.tip_mm is not None else np.nan
-                    for e, t in zip(est, seq.tip_mm)])
+                    for e, t in zip(est, seq.tip_mm, strict=True)])
     # before the rule: frames 6-8 tracked 13.8-17.3 mm off, at the interface's far end
     assert tracked.sum() >= 4
     assert np.nanmax(err[tracked]) < 3.0

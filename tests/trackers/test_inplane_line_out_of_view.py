@@ -39,5 +39,6 @@ def test_needle_fading_on_the_map_before_the_edge_is_lost_once_its_tip_leaves():
     tracking = np.array([e.status == Status.TRACKING for e in est])
     assert tracking[:5].all()
     assert not tracking[~visible].any()
-    err = [np.linalg.norm(e.tip_mm - t) for e, t in zip(est, seq.tip_mm) if e.tip_mm is not None]
+    err = [np.linalg.norm(e.tip_mm - t)
+           for e, t in zip(est, seq.tip_mm, strict=True) if e.tip_mm is not None]
     assert max(err) < 1.0
