@@ -9,7 +9,8 @@ import numpy as np
 
 from .specs import PROBES
 
-__all__ = ["AXIAL_PROBES", "AXIAL_SPECS", "ELEVATION", "AxialSpec", "elevation_fwhm_mm"]
+__all__ = ["AXIAL_PROBES", "AXIAL_SPECS", "AXIAL_VALIDATION_SPECS", "ELEVATION", "AxialSpec",
+           "elevation_fwhm_mm"]
 
 # The in-plane probes (same transmits and compounding) on windows around the needle's
 # cross-section: every slice needs its own tissue, so the image is kept to what the tracker
@@ -103,4 +104,26 @@ AXIAL_SPECS = (
     AxialSpec("ax_ph_no_needle", "P4-2v", 604, needle=False, interface=(0.0, 14.0, -10.0),
               interface_cr=2.4, vessel=(3.0, 24.0, 3.0), dynamic_range_db=55, tissue_grey=85,
               feature="no needle; interface, vessel"),
+)
+
+
+# The axial validation set (``needlenet/data/validation_axial``): other seeds, needles and
+# scenes, for choosing axial tracker settings and models without looking at the set above.
+# Specs fixed before any tracker was run on them.
+AXIAL_VALIDATION_SPECS = (
+    AxialSpec("axv_ph_17", "P4-2v", 611, centre_mm=(1.0, 17.0), tilt_x_deg=-7.0,
+              tilt_z_deg=4.0, tip_y_mm=16.0, gauge=17, target_cr=2.6, feature="plain"),
+    AxialSpec("axv_ph_20_interface", "P4-2v", 612, centre_mm=(-2.0, 14.0), tilt_x_deg=6.0,
+              tilt_z_deg=3.0, tip_y_mm=17.0, gauge=20, target_cr=2.5,
+              interface=(0.0, 17.0, 5.0), interface_cr=2.4, dynamic_range_db=60,
+              tissue_grey=80, feature="bright interface about 2.5 mm below the axis"),
+    AxialSpec("axv_ph_no_needle", "P4-2v", 613, needle=False, interface=(0.0, 20.0, 8.0),
+              interface_cr=2.5, vessel=(-4.0, 12.0, 2.5), dynamic_range_db=50, gamma=0.9,
+              tissue_grey=90, feature="no needle; interface, vessel"),
+    AxialSpec("axv_lin_19_interface", "L11-5v", 511, centre_mm=(1.0, 12.0), tilt_x_deg=-5.0,
+              tilt_z_deg=3.0, tip_y_mm=17.0, gauge=19, target_cr=2.4,
+              interface=(0.0, 14.5, -3.0), interface_cr=2.4, dynamic_range_db=55,
+              tissue_grey=85, feature="bright interface about 2 mm below the axis"),
+    AxialSpec("axv_lin_21", "L11-5v", 512, centre_mm=(-1.5, 10.0), tilt_x_deg=7.0,
+              tilt_z_deg=2.0, tip_y_mm=16.0, gauge=21, target_cr=2.2, feature="plain"),
 )

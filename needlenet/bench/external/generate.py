@@ -283,10 +283,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m needlenet.bench.external.generate",
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, type=Path, help="directory for the .npz files")
-    ap.add_argument("--set", choices=sorted(SETS) + ["axial"], default="test",
+    ap.add_argument("--set", choices=sorted(SETS) + ["axial", "axial-validation"],
+                    default="test",
                     help="the test set (needlenet/data/external), the validation set for "
-                         "choosing between models, or the axial test set "
-                         "(needlenet/data/external_axial) (default: test)")
+                         "choosing between models, the axial test set "
+                         "(needlenet/data/external_axial) or its validation set "
+                         "(needlenet/data/validation_axial) (default: test)")
     ap.add_argument("--only", nargs="+", metavar="NAME", help="generate these sequences only")
     ap.add_argument("--frames", type=int, help="override the frame count (quick looks only)")
     ap.add_argument("--scatterers-per-cell", type=float,
@@ -297,11 +299,12 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         print("the generator needs PyMUST: pip install 'needlenet[external]'", file=sys.stderr)
         return 2
-    if args.set == "axial":
+    if args.set in ("axial", "axial-validation"):
         from .axial_generate import generate_axial
-        from .axial_specs import AXIAL_SPECS
+        from .axial_specs import AXIAL_SPECS, AXIAL_VALIDATION_SPECS
 
-        chosen, make = AXIAL_SPECS, generate_axial
+        chosen = AXIAL_SPECS if args.set == "axial" else AXIAL_VALIDATION_SPECS
+        make = generate_axial
     else:
         chosen, make = SETS[args.set], generate
     names = {s.name for s in chosen}
