@@ -14,8 +14,12 @@ mean parameters predict the whole needle, turned by 180 degrees at D (eqs. 3-4).
 Where the paper leaves things open, or where we depart from it (each is a field of
 :class:`AxialParams`):
 
-* Detection. The paper's user clicks the first centre. Here it is the maximum of the feature
-  map smoothed by a Gaussian of the needle's radius, accepted when its robust score
+* Detection. The paper's user clicks the first centre. Here it is the strongest compact
+  spot of the feature map smoothed by a Gaussian of the needle's radius (a needle cut across
+  is a spot; an interface cut across is a line: the map ``detect_lateral_mm`` either side of
+  a spot stays below ``detect_compact`` of it), which must stand out of the slice's other
+  compact spots by ``detect_ratio`` (on PyMUST's phased-array slices the best of the speckle's
+  spots scores 18-25, its next 1-3% less), and is accepted when its robust score
   (max - median) / (1.4826 MAD) reaches ``detect_score`` (15: needle-free slices of the
   simulator score below 10 on a homogeneous background and up to 13-16 among the bright
   structures of an inhomogeneous one; needles score above 30 at a contrast ratio of 2 and
@@ -41,8 +45,10 @@ Where the paper leaves things open, or where we depart from it (each is a field 
   filter and does not update the template; after ``max_coast_frames`` rejections in a row the
   needle is ``lost``. It is lost at once when the matched place no longer stands out of the
   smoothed map (robust score below ``lost_score``): the cross-section vanished, e.g. the
-  slice passed the tip. While lost (or searching) every frame runs the detector; a centre
-  found again is fed to the filter only if it lies where the model expects it.
+  slice passed the tip; or when it is no compact spot (the match slid onto an interface).
+  While lost (or searching) every frame runs the detector; a centre found again is the
+  needle only where the model expects it (within the jump allowed since the last centre):
+  a spot elsewhere, once the needle has been seen, is tissue and the frame stays ``lost``.
 * The ROI is centred on the model's prediction (the paper), except when that prediction lies
   more than ``max_jump_mm`` from the previous centre: a model that far off (early, or long
   after D) would put the needle outside the ROI, so the previous centre is used instead
@@ -104,8 +110,16 @@ from ..features import FeatureSource, Frame
 from ._axial_maps import SliceGeometry, SliceMaps, region_box, slice_geometry, slice_maps
 from ._axial_params import AxialParams
 from ._base import NeedleEstimate, Status, Tracker
-from ._cross_section import below_top_edge, bilinear, peak_covariance, subpixel_peak
+from ._cross_section import (
+    below_top_edge,
+    bilinear,
+    compact_spots,
+    is_compact,
+    peak_covariance,
+    subpixel_peak,
+)
 from ._details import AxialDetails, AxialModel
+from ._margins import inner_region
 
 __all__ = ["AxialParams", "AxialTracker", "map_fit_bicycle"]
 
@@ -417,7 +431,6 @@ class AxialTracker(Tracker):
         status, center, cov = self.status, None, None
         maps = None
         accepted = detected = False
-        feed = True
         if status == Status.TRACKING and tr.template is not None:
             prev_rc = from_f0_rc(tr.last_xz_f0)
             roi_rc, roi_source = prev_rc, "previous"  # the first 10 mm
@@ -443,6 +456,10 @@ class AxialTracker(Tracker):
                 if score < p.lost_score or s_at < self._min_peak():
                     status = Status.LOST  # the cross-section vanished
                     reason = f"no cross-section at the match (score {score:.1f})"
+                elif not is_compact(maps.S, m.center, maps.med, maps.scale, spacing,
+                                    p.detect_lateral_mm, p.detect_compact):
+                    status = Status.LOST  # the match slid onto a line: an interface
+                    reason = "the match lies on a line across the slice, not a cross-section"
                 elif m.peak < p.ncc_min:
                     reason = f"NCC peak {m.peak:.2f} < {p.ncc_min}"
                 elif jump > allowed:
@@ -465,19 +482,24 @@ class AxialTracker(Tracker):
             # (re-)detection: the maximum of the smoothed map replaces the user's click
             if maps is None or maps.valid is not None:  # detection reads the whole slice
                 maps = self._maps(frame, g)
-            center, score = self._detect(maps.F, maps.S, maps.med, maps.scale, spacing)
+            center, score, why = self._detect(frame, maps, spacing)
             if center is None:
                 status = Status.SEARCHING if status == Status.TRACKING else status
                 if reason is None:
-                    reason = f"no cross-section (score {score:.1f} < {p.detect_score})"
+                    reason = why
             else:
                 reason = None
                 status, accepted, detected = Status.TRACKING, True, True
                 cov = np.diag(np.full(2, (0.5 * p.needle_radius_mm) ** 2))
-                if tr.last_xz_f0 is not None:  # found again: fed only where expected
+                if tr.last_xz_f0 is not None:  # found again: the needle only where expected
                     ref = pred_xz if pred_xz is not None else tr.last_xz_f0
                     allowed = p.max_jump_mm + p.max_slope * abs(eps - tr.last_eps)
-                    feed = bool(np.linalg.norm(to_f0_xz(center) - ref) <= allowed)
+                    off = float(np.linalg.norm(to_f0_xz(center) - ref))
+                    if off > allowed:
+                        status, accepted, detected = Status.LOST, False, False
+                        reason = (f"a spot {off:.1f} mm from the needle's path (allowed "
+                                  f"{allowed:.1f} mm): not the needle")
+                        center, cov = None, None
         t_image = time.perf_counter()
 
         if accepted:
@@ -489,7 +511,7 @@ class AxialTracker(Tracker):
             tr.last_xz_f0, tr.last_eps = xz0, eps
             if tr.origin_xz is None:  # section IV: the first point is the origin of (u, v)
                 tr.origin_xz, tr.origin_eps = xz0, eps
-            if feed and not tr.frozen and depth >= tr.origin_depth:
+            if not tr.frozen and depth >= tr.origin_depth:
                 tr.xz.append(xz0)
                 tr.eps.append(eps)
                 self._update_filter()
@@ -508,14 +530,28 @@ class AxialTracker(Tracker):
                               covariance=cov if tip is not None else None, reason=reason,
                               details=details)
 
-    def _detect(self, F, S, s_med, s_scale, spacing) -> tuple[np.ndarray | None, float]:
-        """The maximum of the smoothed feature map, when it stands out (``detect_score``);
-        moved to one radius below the echo's upper edge for classical features."""
+    def _detect(self, frame: Frame, maps: SliceMaps, spacing
+                ) -> tuple[np.ndarray | None, float, str]:
+        """The strongest compact spot of the smoothed feature map inside the imaged region
+        (less ``mask_edge_mm``), when it stands out of the map (``detect_score``) and of the
+        slice's other compact spots (``detect_ratio``; see :func:`compact_spots`); moved to one
+        radius below the echo's upper edge for classical features. Returns (centre or None,
+        its robust score, why there is none)."""
         p = self.params
-        idx = np.unravel_index(int(np.argmax(S)), S.shape)
-        score = (float(S[idx]) - s_med) / s_scale
+        F, S = maps.F, maps.S
+        inner = inner_region(frame, p.mask_edge_mm)
+        if not inner.all():
+            S = np.where(inner, S, np.float32(maps.med))
+        spots, z = compact_spots(S, maps.med, maps.scale, spacing, p.detect_lateral_mm,
+                                 p.detect_compact, p.detect_separation_mm)
+        if not spots:
+            return None, float(z.max()), "no cross-section: no compact spot on the map"
+        idx, score = spots[0], float(z[spots[0]])
         if score < p.detect_score or float(S[idx]) < self._min_peak():
-            return None, score
+            return None, score, f"no cross-section (score {score:.1f} < {p.detect_score})"
+        if len(spots) > 1 and score < p.detect_ratio * max(float(z[spots[1]]), 0.0):
+            return None, score, (f"no cross-section: the best spot (score {score:.1f}) does "
+                                 f"not stand out of the next ({float(z[spots[1]]):.1f})")
         center = np.asarray(idx, dtype=float) + subpixel_peak(S, idx)
         if self._anchor() == "top_edge":
             center = below_top_edge(F, center, float(F.mean()),
@@ -524,7 +560,7 @@ class AxialTracker(Tracker):
             # a learned map of the wall facing the probe: the centre lies a radius deeper
             # (the beam is +z; the needle crosses the slice nearly at right angles)
             center = center + self._wall_offset_rc(spacing)
-        return center, score
+        return center, score, ""
 
     def _model(self, depth: float, from_f0: np.ndarray) -> tuple[AxialModel, np.ndarray | None]:
         """The model after this frame's update (parameters, whole shape), and the needle's

@@ -26,6 +26,19 @@ class AxialParams:
     needle_radius_mm: float = 0.635  # 18 G; the detector's Gaussian sigma
     detect_score: float = 15.0  # robust score (max - median) / MAD of the smoothed feature
     lost_score: float = 8.0  # below this at the matched centre the cross-section vanished
+    # a detection must be a compact spot (the smoothed map at detect_lateral_mm either side of
+    # it below detect_compact of its score: a needle's cross-section is the needle's diameter
+    # widened by the lateral beam, an interface cut across is a line) that stands out of the
+    # slice's other compact spots (its score at least detect_ratio times the next one's,
+    # farther than detect_separation_mm: speckle's spots are alike)
+    detect_lateral_mm: float = 2.0
+    detect_compact: float = 0.5
+    detect_ratio: float = 1.5
+    detect_separation_mm: float = 2.0
+    # evidence this close to the edge of a capture margin or sector mask is not detected (the
+    # mask's step is no echo; the shipped model marks it within a millimetre of a sector's
+    # edge on PyMUST's phased-array slices), as the in-plane tracker's mask_edge_mm
+    mask_edge_mm: float = 1.5
     score_floor: float = 1e-3  # least MAD (feature units): a clean map has none
     min_peak: float | None = None  # least smoothed feature to detect; None: 0.3 for
     # learned sources (a probability has an absolute scale), 0 for classical ones
@@ -77,3 +90,9 @@ class AxialParams:
                      "max_jump_mm", "measurement_sd_mm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not (0.0 < self.detect_lateral_mm <= 100.0 and 0.0 < self.detect_separation_mm <= 100.0
+                and 0.0 < self.detect_compact and self.detect_ratio >= 1.0
+                and 0.0 <= self.mask_edge_mm <= 100.0):
+            raise ValueError("detect_lateral_mm and detect_separation_mm must lie in (0, 100], "
+                             "mask_edge_mm in [0, 100], detect_compact be positive and "
+                             "detect_ratio at least 1")

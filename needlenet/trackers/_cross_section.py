@@ -6,7 +6,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["below_top_edge", "bilinear", "odd_px", "peak_covariance", "subpixel_peak"]
+__all__ = ["below_top_edge", "bilinear", "compact_spots", "is_compact", "odd_px",
+           "peak_covariance", "subpixel_peak"]
+
+MAX_SPOTS = 64  # the strongest local maxima a slice is searched for spots
 
 
 def odd_px(length_mm: float, spacing_mm: float) -> int:
@@ -84,3 +87,54 @@ def peak_covariance(s: np.ndarray, spacing: np.ndarray) -> np.ndarray:
                 var[ax] = max((1.0 - s[i, j]) / -d2, 1.0 / 12.0)
     var_mm = var * spacing**2
     return np.diag([var_mm[1], var_mm[0]])  # (x, z)
+
+
+def compact_spots(S: np.ndarray, med: float, scale: float, spacing, lateral_mm: float,
+                  compact: float, separation_mm: float) -> tuple[list[tuple[int, int]],
+                                                                  np.ndarray]:
+    """The compact spots of a smoothed feature map ``S`` (rows depth, columns lateral), the
+    strongest first, each farther than ``separation_mm`` from a stronger one; and the robust
+    score map z = (S - ``med``) / ``scale``.
+
+    A spot is a local maximum with z > 0 whose score ``lateral_mm`` either side of it (the
+    larger of the two sides inside the map) is below ``compact`` times its own: a needle cut
+    across is a spot the needle's width widened by the lateral beam, and a tissue interface
+    cut across is a line along which the map stays high. Among the ``MAX_SPOTS`` strongest
+    compact maxima."""
+    from scipy import ndimage
+
+    sp = np.asarray(spacing, dtype=float)
+    z = (np.asarray(S, dtype=np.float64) - med) / scale
+    size = tuple(max(3, 2 * int(round(0.5 * separation_mm / float(v))) + 1) for v in sp)
+    peaks = (S == ndimage.maximum_filter(S, size=size)) & (z > 0)
+    rr, cc = np.nonzero(peaks)
+    k = max(int(round(lateral_mm / float(sp[1]))), 1)
+    w = S.shape[1]
+    left = np.where(cc - k >= 0, z[rr, np.clip(cc - k, 0, w - 1)], -np.inf)
+    right = np.where(cc + k < w, z[rr, np.clip(cc + k, 0, w - 1)], -np.inf)
+    keep = np.maximum(left, right) < compact * z[rr, cc]
+    rr, cc = rr[keep], cc[keep]
+    top = np.argsort(-z[rr, cc], kind="stable")[:MAX_SPOTS]
+    rr, cc = rr[top], cc[top]
+    spots: list[tuple[int, int]] = []
+    taken = np.zeros((0, 2))
+    for r, c in zip(rr, cc, strict=True):  # at most MAX_SPOTS: non-maximum suppression
+        here = np.array([r, c], float) * sp
+        if taken.size and np.min(np.hypot(*(taken - here).T)) <= separation_mm:
+            continue
+        spots.append((int(r), int(c)))
+        taken = np.vstack([taken, here])
+    return spots, z
+
+
+def is_compact(S: np.ndarray, center_rc, med: float, scale: float, spacing, lateral_mm: float,
+               compact: float) -> bool:
+    """Whether the smoothed map ``S`` at ``center_rc`` (row, col; sub-pixel) is a compact spot
+    as :func:`compact_spots` reads one: its score ``lateral_mm`` either side (the larger side
+    inside the map) below ``compact`` times its own."""
+    r, c = (float(v) for v in center_rc)
+    k = lateral_mm / float(np.asarray(spacing, dtype=float)[1])
+    here = (bilinear(S, np.array([r, c])) - med) / scale
+    sides = [(bilinear(S, np.array([r, c + d])) - med) / scale
+             for d in (-k, k) if 0.0 <= c + d <= S.shape[1] - 1]
+    return not sides or max(sides) < compact * here

@@ -69,18 +69,13 @@ from ..backends import (
 from ..features import FeatureSource, Frame, line_contrast
 from ._base import NeedleEstimate, Status, Tracker
 from ._details import LineDetails
-from ._inplane_geometry import (
-    AROUND,
-    distance_to_edge,
-    entry_to_tip,
-    imaged_region,
-    on_line,
-)
+from ._inplane_geometry import AROUND, distance_to_edge, entry_to_tip, on_line
 from ._inplane_growing import GrowingMark
 from ._inplane_line_echo import echo_along
 from ._inplane_line_params import LineTrackerParams
 from ._inplane_line_tip import LineTip
 from ._inplane_still import StillLines
+from ._margins import inner_region
 
 __all__ = ["LineTrackerParams", "LineTracker"]
 
@@ -182,15 +177,7 @@ class LineTracker(LineTip, Tracker):
     def _inner_region(self, frame: Frame) -> np.ndarray:
         """The imaged region less ``mask_edge_mm`` along the edges of margins and masks (the
         frame's own border is no such edge)."""
-        valid = imaged_region(frame)
-        if valid.all():
-            return valid
-        dz, dx = frame.grid.spacing_mm
-        kz = max(int(round(self.params.mask_edge_mm / dz)), 1)
-        kx = max(int(round(self.params.mask_edge_mm / dx)), 1)
-        padded = np.pad(valid, ((kz, kz), (kx, kx)), constant_values=True).astype(np.uint8)
-        eroded = cv2.erode(padded, np.ones((2 * kz + 1, 2 * kx + 1), np.uint8))
-        return eroded[kz:-kz, kx:-kx] > 0
+        return inner_region(frame, self.params.mask_edge_mm)
 
     def _validity(self, frame: Frame, inner: np.ndarray):
         """Three functions of a segment, from where its ends lie against the edge of the

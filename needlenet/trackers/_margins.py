@@ -19,7 +19,7 @@ import numpy as np
 
 from ..features import Frame
 
-__all__ = ["imaged_region", "zero_margins", "BLACK_GREY", "MARGIN_ALONG_MM"]
+__all__ = ["imaged_region", "inner_region", "zero_margins", "BLACK_GREY", "MARGIN_ALONG_MM"]
 
 BLACK_GREY = 12  # 8-bit grey levels: JPEG ringing beside a black margin (quality 40: <= 10)
 MARGIN_ALONG_MM = 5.0  # a margin runs along the border; a vessel at the border touches it less
@@ -63,6 +63,21 @@ def imaged_region(frame: Frame) -> np.ndarray:
             valid = ~np.isin(labels, _margins(labels, frame.grid.spacing_mm))
     frame.extras["imaged_region"] = valid
     return valid
+
+
+def inner_region(frame: Frame, edge_mm: float) -> np.ndarray:
+    """The imaged region (:func:`imaged_region`) less ``edge_mm`` along the edges of margins
+    and sector masks, where a map marks the mask's step (the frame's own border is no such
+    edge)."""
+    valid = imaged_region(frame)
+    if valid.all():
+        return valid
+    dz, dx = frame.grid.spacing_mm
+    kz = max(int(round(edge_mm / dz)), 1)
+    kx = max(int(round(edge_mm / dx)), 1)
+    padded = np.pad(valid, ((kz, kz), (kx, kx)), constant_values=True).astype(np.uint8)
+    eroded = cv2.erode(padded, np.ones((2 * kz + 1, 2 * kx + 1), np.uint8))
+    return eroded[kz:-kz, kx:-kx] > 0
 
 
 def zero_margins(frame: Frame) -> Frame:
