@@ -17,9 +17,10 @@ Where the paper leaves things open, or where we depart from it (each is a field 
 * Detection. The paper's user clicks the first centre. Here it is the strongest compact
   spot of the feature map smoothed by a Gaussian of the needle's radius (a needle cut across
   is a spot; an interface cut across is a line: the map ``detect_lateral_mm`` either side of
-  a spot stays below ``detect_compact`` of it), which must stand out of the slice's other
-  compact spots by ``detect_ratio`` (on PyMUST's phased-array slices the best of the speckle's
-  spots scores 18-25, its next 1-3% less), and is accepted when its robust score
+  a spot stays below ``detect_compact`` of it), which on a classical map must stand out of
+  the slice's other compact spots by ``detect_ratio`` (on PyMUST's phased-array slices the
+  best of the speckle's spots scores 18-25, its next 1-3% less), and is accepted when its
+  robust score
   (max - median) / (1.4826 MAD) reaches ``detect_score`` (15: needle-free slices of the
   simulator score below 10 on a homogeneous background and up to 13-16 among the bright
   structures of an inhomogeneous one; needles score above 30 at a contrast ratio of 2 and
@@ -533,8 +534,10 @@ class AxialTracker(Tracker):
     def _detect(self, frame: Frame, maps: SliceMaps, spacing
                 ) -> tuple[np.ndarray | None, float, str]:
         """The strongest compact spot of the smoothed feature map inside the imaged region
-        (less ``mask_edge_mm``), when it stands out of the map (``detect_score``) and of the
-        slice's other compact spots (``detect_ratio``; see :func:`compact_spots`); moved to one
+        (less ``mask_edge_mm``), when it stands out of the map (``detect_score``) and, on a
+        classical map, of the slice's other compact spots (``detect_ratio``; see
+        :func:`compact_spots`; a learned probability has an absolute level, ``min_peak``,
+        and marks an interface in spots as bright as a faint needle's); moved to one
         radius below the echo's upper edge for classical features. Returns (centre or None,
         its robust score, why there is none)."""
         p = self.params
@@ -549,7 +552,8 @@ class AxialTracker(Tracker):
         idx, score = spots[0], float(z[spots[0]])
         if score < p.detect_score or float(S[idx]) < self._min_peak():
             return None, score, f"no cross-section (score {score:.1f} < {p.detect_score})"
-        if len(spots) > 1 and score < p.detect_ratio * max(float(z[spots[1]]), 0.0):
+        if not self._is_learned() and len(spots) > 1 and \
+                score < p.detect_ratio * max(float(z[spots[1]]), 0.0):
             return None, score, (f"no cross-section: the best spot (score {score:.1f}) does "
                                  f"not stand out of the next ({float(z[spots[1]]):.1f})")
         center = np.asarray(idx, dtype=float) + subpixel_peak(S, idx)

@@ -28,9 +28,9 @@ class AxialParams:
     lost_score: float = 8.0  # below this at the matched centre the cross-section vanished
     # a detection must be a compact spot (the smoothed map at detect_lateral_mm either side of
     # it below detect_compact of its score: a needle's cross-section is the needle's diameter
-    # widened by the lateral beam, an interface cut across is a line) that stands out of the
-    # slice's other compact spots (its score at least detect_ratio times the next one's,
-    # farther than detect_separation_mm: speckle's spots are alike)
+    # widened by the lateral beam, an interface cut across is a line) and, on a classical
+    # map, stands out of the slice's other compact spots (its score at least detect_ratio
+    # times the next one's, farther than detect_separation_mm: speckle's spots are alike)
     detect_lateral_mm: float = 2.0
     detect_compact: float = 0.5
     detect_ratio: float = 1.5
