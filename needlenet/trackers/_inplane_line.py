@@ -23,9 +23,9 @@ through the skin or the side of the view and goes in along its axis, so a segmen
 the tissue (its entry end away from the edge of the view) is never taken for a new needle, and
 once a needle has been tracked it is taken only as the continuation of the needle seen on the
 frame before: on its axis, and ending where its tip is tracked (the same needle, partly out of
-the plane). A new line that enters where the confirmed needle still held by the filter entered
-(``confirm_after_frames`` tip measurements accepted in a row), but is longer than that needle
-could have grown since it was seen, is the needle merged on the map
+the plane). A new learned line that enters where the confirmed needle still held by the
+filter entered (``confirm_after_frames`` tip measurements accepted in a row), but is longer
+than that needle could have grown since it was seen, is the needle merged on the map
 with a tissue line that runs on beside it (a bright interface): the frame is `lost`. A
 confirmed needle seen running on out of view along its line (its tip has left the view), or
 whose weaker continuation on a learned map runs on to the edge of the view, is `lost` too,
@@ -339,10 +339,12 @@ class LineTracker(LineTip, Tracker):
         than that needle could have grown since it was last seen: at the filter's speed prior
         (``initial_speed_std_mm_s``, at its gate's probability) plus the search's bridged gap.
         That is the same insertion merged on the map with a tissue line that runs on beside it
-        (an interface), not the needle's new line."""
+        (an interface), not the needle's new line. Learned features only: with classical ones
+        a confirmed track can itself be a needle-like tissue line entering where the needle
+        does, and the longer line from that entry the needle."""
         p = self.params
-        if self._x is None or self._entry_mm is None or self._seen_t is None or \
-                self._accepted_run < p.confirm_after_frames:
+        if self.features.kind != "learned" or self._x is None or self._entry_mm is None or \
+                self._seen_t is None or self._accepted_run < p.confirm_after_frames:
             return False
         if not shares_entry(seg):
             return False
