@@ -135,3 +135,19 @@ def test_a_model_of_another_modality_is_refused_for_the_axial_set(capsys):
     model = str(resources.files("needlenet").joinpath("models", "inplane.onnx"))
     assert main(["bench", "external", "--data", str(axial_data_dir()), "--model", model]) == 2
     assert "is a 'inplane' model, not 'axial'" in capsys.readouterr().err
+
+
+def test_the_axial_validation_set_is_apart_from_the_test_set():
+    from pathlib import Path
+
+    from needlenet.bench.external.axial_specs import AXIAL_SPECS, AXIAL_VALIDATION_SPECS
+    from needlenet.bench.external.specs import SPECS, VALIDATION_SPECS
+
+    folder = Path(__file__).resolve().parents[2] / "needlenet" / "data" / "validation_axial"
+    names = sorted(p.stem for p in folder.glob("*.npz"))
+    assert names == sorted(s.name for s in AXIAL_VALIDATION_SPECS)
+    seeds = {s.seed for s in AXIAL_VALIDATION_SPECS}
+    assert not seeds & {s.seed for s in AXIAL_SPECS + SPECS + VALIDATION_SPECS}
+    for name in names:
+        seq = synth.load_sequence(folder / f"{name}.npz")
+        assert seq.modality == "axial"
