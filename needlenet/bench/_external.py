@@ -78,6 +78,18 @@ def sequence_metrics(tracking: np.ndarray, tip_est: np.ndarray, tip_true: np.nda
                     int((free & tracking).sum()))
 
 
+
+def estimate_metrics(est: list, seq: synth.Sequence) -> tuple[np.ndarray, np.ndarray, dict]:
+    """A tracker's estimates on ``seq``: which frames it reported `tracking`, its tips (NaN
+    where none) and :func:`sequence_metrics` against the labels."""
+    needle, free = frame_classes(seq)
+    tracking = np.array([e.status.value == "tracking" for e in est])
+    tip_est = np.array([np.full(2, np.nan) if e.tip_mm is None
+                        else np.asarray(e.tip_mm, float) for e in est])
+    tip_true = np.full((seq.n_frames, 2), np.nan) if seq.tip_mm is None \
+        else np.asarray(seq.tip_mm, float)
+    return tracking, tip_est, sequence_metrics(tracking, tip_est, tip_true, needle, free)
+
 def pooled_metrics(per_sequence: list[dict]) -> dict:
     """The metrics over all frames of several sequences (errors and counts pooled)."""
     err = np.concatenate([np.asarray(m["tip_errors_mm"], float) for m in per_sequence]) \
@@ -160,13 +172,7 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
         method = None
         for i, (name, seq) in enumerate(seqs):
             method, est = _track(seq, kind, seed + i, model)
-            needle, free = frame_classes(seq)
-            tracking = np.array([e.status.value == "tracking" for e in est])
-            tip_est = np.array([np.full(2, np.nan) if e.tip_mm is None
-                                else np.asarray(e.tip_mm, float) for e in est])
-            tip_true = np.full((seq.n_frames, 2), np.nan) if seq.tip_mm is None \
-                else np.asarray(seq.tip_mm, float)
-            m = sequence_metrics(tracking, tip_est, tip_true, needle, free)
+            tracking, tip_est, m = estimate_metrics(est, seq)
             per.append(m)
             traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est}
             lat = np.array([e.latency_ms for e in est], float)
@@ -212,20 +218,30 @@ def markdown(result: dict, machine: dict) -> str:
              "are chosen, docs/notes/inplane.md).", "",
              "| sequence | probe | needle | features | median (mm) | 95th (mm) | tracked | "
              "false | score |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in result["rows"]:
+    lines += table_rows(result["rows"], lambda r: " ".join(
+        v for v in (r["side"], None if r["angle_deg"] is None else f"{r['angle_deg']:g}°")
+        if v) or "yes", lambda r: _fmt(r.get("score"), 3))
+    return "\n".join(lines)
+
+
+def table_rows(rows: list[dict], needle_text, last_cell) -> list[str]:
+    """The markdown rows of an external set's table (per sequence and pooled): sequence,
+    probe, needle (``needle_text(row)`` for a needle sequence), features, median, 95th,
+    tracked, false and ``last_cell(row)``."""
+    out = []
+    for r in rows:
         if r["sequence"] == "pooled":
             needle = "-"
         elif r["needle"]:
-            needle = " ".join(v for v in (r["side"], None if r["angle_deg"] is None else
-                                          f"{r['angle_deg']:g}°") if v) or "yes"
+            needle = needle_text(r)
         else:
             needle = "none"
         name = f"**{r['sequence']}**" if r["sequence"] == "pooled" else r["sequence"]
-        lines.append(f"| {name} | {r['probe'] or '-'} | {needle} | {r['features']} | "
-                     f"{_fmt(r['tip_error_median_mm'])} | {_fmt(r['tip_error_p95_mm'])} | "
-                     f"{_pct(r['tracked_fraction'])} | {_pct(r['false_tracking_fraction'])} | "
-                     f"{_fmt(r.get('score'), 3)} |")
-    return "\n".join(lines)
+        out.append(f"| {name} | {r['probe'] or '-'} | {needle} | {r['features']} | "
+                   f"{_fmt(r['tip_error_median_mm'])} | {_fmt(r['tip_error_p95_mm'])} | "
+                   f"{_pct(r['tracked_fraction'])} | {_pct(r['false_tracking_fraction'])} | "
+                   f"{last_cell(r)} |")
+    return out
 
 
 def _pct(v) -> str:

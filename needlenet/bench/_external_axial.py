@@ -28,7 +28,7 @@ import numpy as np
 
 import synth
 
-from ._external import _fmt, _pct, frame_classes, pooled_metrics, sequence_metrics
+from ._external import _fmt, estimate_metrics, frame_classes, pooled_metrics, table_rows
 
 __all__ = ["PREDICT_AHEAD_MM", "axial_data_dir", "markdown_axial", "run_axial_set",
            "tip_prediction"]
@@ -82,14 +82,8 @@ def run_axial_set(seqs, seed: int, log, rows: list, model: str | None) -> dict:
             tracker = make_tracker("axial", "carriere", kind,
                                    model if kind == "learned" else None, seed=seed + i)
             est = tracker.run(seq)
-            needle, free = frame_classes(seq)
-            tracking = np.array([e.status.value == "tracking" for e in est])
-            tip_est = np.array([np.full(2, np.nan) if e.tip_mm is None
-                                else np.asarray(e.tip_mm, float) for e in est])
-            tip_true = np.full((seq.n_frames, 2), np.nan) if seq.tip_mm is None \
-                else np.asarray(seq.tip_mm, float)
-            m = sequence_metrics(tracking, tip_est, tip_true, needle, free)
-            pred = tip_prediction(est, seq, needle)
+            tracking, tip_est, m = estimate_metrics(est, seq)
+            pred = tip_prediction(est, seq, frame_classes(seq)[0])
             per.append(m)
             if pred["tip_prediction_error_mm"] is not None:
                 preds.append(pred["tip_prediction_error_mm"])
@@ -136,16 +130,6 @@ def markdown_axial(result: dict, machine: dict) -> str:
              f"{PREDICT_AHEAD_MM:g} mm before it (pooled: median over sequences).", "",
              "| sequence | probe | needle | features | median (mm) | 95th (mm) | tracked | "
              "false | tip prediction (mm) |", "|---|---|---|---|---|---|---|---|---|"]
-    for r in result["rows"]:
-        if r["sequence"] == "pooled":
-            needle = "-"
-        elif r["needle"]:
-            needle = f"{r['gauge']} G, CR {r['target_cr']:g}"
-        else:
-            needle = "none"
-        name = f"**{r['sequence']}**" if r["sequence"] == "pooled" else r["sequence"]
-        lines.append(f"| {name} | {r['probe'] or '-'} | {needle} | {r['features']} | "
-                     f"{_fmt(r['tip_error_median_mm'])} | {_fmt(r['tip_error_p95_mm'])} | "
-                     f"{_pct(r['tracked_fraction'])} | {_pct(r['false_tracking_fraction'])} | "
-                     f"{_fmt(r.get('tip_prediction_error_mm'))} |")
+    lines += table_rows(result["rows"], lambda r: f"{r['gauge']} G, CR {r['target_cr']:g}",
+                        lambda r: _fmt(r.get("tip_prediction_error_mm")))
     return "\n".join(lines)

@@ -7,36 +7,36 @@ import pytest
 import synth
 
 
-def test_needle_running_out_of_view_is_lost_and_no_tissue_line_is_taken_for_it():
+def _track(seed: int, start_length_mm: float, exits: int):
+    """A 40-frame synth insertion whose tip leaves the view on frame ``exits``, tracked with
+    learned features: (sequence, visible, tracking, estimates)."""
     pytest.importorskip("onnxruntime")
     from needlenet.trackers import Status, make_tracker
 
-    # 14 G from the top right at 45 degrees; its tip leaves the view through the left edge on
-    # frame 31. The track forgotten after five frames of the needle running edge to edge, a
-    # 5 mm tissue line near the entry was taken for a new needle (frames 32, 33 and 39).
-    seq = synth.generate("inplane", seed=13, frames=40, start_length_mm=35.0)
+    seq = synth.generate("inplane", seed=seed, frames=40, start_length_mm=start_length_mm)
     visible = np.asarray(seq.visible, bool)
-    assert visible[:31].all() and not visible[31:].any()
+    assert visible[:exits].all() and not visible[exits:].any()
     est = make_tracker("inplane", "line", "learned", seed=0).run(seq)
     tracking = np.array([e.status == Status.TRACKING for e in est])
+    return seq, visible, tracking, est
+
+
+def test_needle_running_out_of_view_is_lost_and_no_tissue_line_is_taken_for_it():
+    # 14 G from the top right at 45 degrees, leaving through the left edge. The track
+    # forgotten after five frames of the needle running edge to edge, a 5 mm tissue line near
+    # the entry was taken for a new needle (frames 32, 33 and 39).
+    _, visible, tracking, est = _track(13, 35.0, 31)
     assert tracking[:20].all()
     assert not tracking[~visible].any()
-    assert all(e.status == Status.LOST for e in est[31:])
+    assert all(e.status.value == "lost" for e in est[31:])
 
 
 def test_needle_fading_on_the_map_before_the_edge_is_lost_once_its_tip_leaves():
-    pytest.importorskip("onnxruntime")
-    from needlenet.trackers import Status, make_tracker
-
-    # 14 G from the top right at 35 degrees; its tip leaves the view on frame 12. The shaft
-    # map's confident evidence ends 3 mm before the left edge (the needle fades on the map at
-    # 26 mm depth) and its weaker continuation runs on to the edge: the segment's end stood
-    # still there as a tip, 3-24 mm behind the needle's, on every frame from 11 on.
-    seq = synth.generate("inplane", seed=21, frames=40, start_length_mm=40.0)
-    visible = np.asarray(seq.visible, bool)
-    assert visible[:12].all() and not visible[12:].any()
-    est = make_tracker("inplane", "line", "learned", seed=0).run(seq)
-    tracking = np.array([e.status == Status.TRACKING for e in est])
+    # 14 G from the top right at 35 degrees. The shaft map's confident evidence ends 3 mm
+    # before the left edge (the needle fades on the map at 26 mm depth) and its weaker
+    # continuation runs on to the edge: the segment's end stood still there as a tip, 3-24 mm
+    # behind the needle's, on every frame from 11 on.
+    seq, visible, tracking, est = _track(21, 40.0, 12)
     assert tracking[:5].all()
     assert not tracking[~visible].any()
     err = [np.linalg.norm(e.tip_mm - t)

@@ -15,7 +15,7 @@ of the upper wall is ``target_cr`` times the same pixels' mean grey without the 
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +31,15 @@ from .axial import (
     tissue_field,
 )
 from .axial_specs import AXIAL_PROBES, AxialSpec, elevation_fwhm_mm
-from .generate import _bisect, _grey, _local_contrast, _near, _tgc_gain, _version, _white_level
+from .generate import (
+    _bisect,
+    _grey,
+    _local_contrast,
+    _near,
+    _tgc_gain,
+    _white_level,
+    common_meta,
+)
 from .scene import _C, CONTRAST_RADIUS_MM, _Domain, _interface_line
 from .specs import ProbeSetup
 
@@ -194,16 +202,7 @@ def generate_axial(spec: AxialSpec, out_dir: Path, log=print,
     pose = np.repeat(np.eye(4)[None], T, 0)
     pose[:, 1, 3] = y  # the probe steps along its elevation axis
     meta = {
-        "source": "pymust",
-        "pymust_version": _version("pymust"),
-        "scenario": spec.name,
-        "seed": spec.seed,
-        "needle": spec.needle,
-        "probe": spec.probe,
-        "probe_setup": asdict(setup),
-        "spec": asdict(spec),
-        "gauge": spec.gauge if spec.needle else None,
-        "needle_radius_mm": needle.r if needle is not None else None,
+        **common_meta(spec, setup, needle.r if needle is not None else None),
         "tip_y_mm": float(needle.tip[1]) if needle is not None else None,
         "tip_3d_mm": needle.tip.tolist() if needle is not None else None,
         "target_cr": spec.target_cr if spec.needle else None,

@@ -208,6 +208,23 @@ def _compose(sim: dict, spec: SequenceSpec):
                 shaft_in_view=shaft_in_view)
 
 
+
+def common_meta(spec, setup: ProbeSetup, needle_radius_mm: float | None) -> dict:
+    """The ``meta`` entries every sequence of an external set carries (in-plane or axial):
+    where it comes from, its spec, probe and needle."""
+    return {
+        "source": "pymust",
+        "pymust_version": _version("pymust"),
+        "scenario": spec.name,
+        "seed": spec.seed,
+        "needle": spec.needle,
+        "probe": spec.probe,
+        "probe_setup": asdict(setup),
+        "spec": asdict(spec),
+        "gauge": spec.gauge if spec.needle else None,
+        "needle_radius_mm": needle_radius_mm,
+    }
+
 def generate(spec: SequenceSpec, out_dir: Path, log=print,
              scatterers_per_cell: float | None = None) -> Path:
     """Simulate one sequence and write ``out_dir/NAME.npz``."""
@@ -216,18 +233,8 @@ def generate(spec: SequenceSpec, out_dir: Path, log=print,
     res = _compose(sim, spec)
     setup = PROBES[spec.probe]
     dom = sim["dom"]
-    spec_d = asdict(spec)
     meta = {
-        "source": "pymust",
-        "pymust_version": _version("pymust"),
-        "scenario": spec.name,
-        "seed": spec.seed,
-        "needle": spec.needle,
-        "probe": spec.probe,
-        "probe_setup": asdict(setup),
-        "spec": spec_d,
-        "gauge": spec.gauge if spec.needle else None,
-        "needle_radius_mm": sim["needle"].r if spec.needle else None,
+        **common_meta(spec, setup, sim["needle"].r if spec.needle else None),
         "side": spec.side if spec.needle else None,
         "angle_deg": spec.angle_deg if spec.needle else None,
         "target_cr": spec.target_cr if spec.needle else None,
