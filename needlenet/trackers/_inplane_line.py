@@ -71,6 +71,7 @@ from ._base import NeedleEstimate, Status, Tracker
 from ._details import LineDetails
 from ._inplane_geometry import AROUND, distance_to_edge, entry_to_tip, on_line
 from ._inplane_growing import GrowingMark
+from ._inplane_line_confirmed import ConfirmedTrack
 from ._inplane_line_echo import echo_along
 from ._inplane_line_params import LineTrackerParams
 from ._inplane_line_tip import LineTip
@@ -79,7 +80,7 @@ from ._margins import inner_region
 
 __all__ = ["LineTrackerParams", "LineTracker"]
 
-class LineTracker(LineTip, Tracker):
+class LineTracker(LineTip, ConfirmedTrack, Tracker):
     """Whole-frame needle line search with a Kalman filter on the tip (the default in-plane
     tracker; see the module's doc).
 
@@ -332,26 +333,6 @@ class LineTracker(LineTip, Tracker):
         end = seg.end_mm if float(seg.direction @ self._dir) >= 0 else seg.start_mm
         return self._gate_distance(end) <= chi2_gate(2, self.params.gate_probability)
 
-    def _outgrown(self, seg: NeedleLine, t: float, shares_entry) -> bool:
-        """Whether ``seg``, another line than the one tracked, enters within
-        ``entry_margin_mm`` of where the confirmed needle still held by the filter entered
-        (``confirm_after_frames``) but is longer
-        than that needle could have grown since it was last seen: at the filter's speed prior
-        (``initial_speed_std_mm_s``, at its gate's probability) plus the search's bridged gap.
-        That is the same insertion merged on the map with a tissue line that runs on beside it
-        (an interface), not the needle's new line. Learned features only: with classical ones
-        a confirmed track can itself be a needle-like tissue line entering where the needle
-        does, and the longer line from that entry the needle."""
-        p = self.params
-        if self.features.kind != "learned" or self._x is None or self._entry_mm is None or \
-                self._seen_t is None or self._accepted_run < p.confirm_after_frames:
-            return False
-        if not shares_entry(seg):
-            return False
-        speed = p.initial_speed_std_mm_s * chi2_gate(1, p.gate_probability)
-        reach = speed * max(t - self._seen_t, self.dt_s) + p.search.gap_mm
-        return seg.length_mm - self._longest_mm > reach
-
     def _gate_distance(self, z: np.ndarray) -> float:
         """Mahalanobis distance of tip measurement ``z`` from the filter's prediction."""
         y = z - self._x[:2]
@@ -386,7 +367,7 @@ class LineTracker(LineTip, Tracker):
             self._forget()  # another line than the one tracked: start anew
         seg = self._orient(seg, frame, inner)
         reach, runs_on = self._reach_mm(seg, wm, frame, inner)
-        if runs_on and self._accepted_run >= self.params.confirm_after_frames:
+        if runs_on and self._confirmed:
             # the confirmed needle's weaker continuation runs on to the edge: where the map
             # fades at depth while the needle goes on, its tip is out of view
             self._out_of_view = self._out_of_sight = True
@@ -467,20 +448,6 @@ class LineTracker(LineTip, Tracker):
                 f"the {other.length_mm:.0f} mm line is not taken for the needle: the needle "
                 "tracked runs on out of view, and one needle is there")), False
         return other, not self._same_line(other)
-
-    def _runs_out_on_axis(self, seg: NeedleLine, runs_out) -> bool:
-        """Whether the search result ``seg`` is the confirmed needle (``confirm_after_frames``)
-        refused because it runs on out of view along its tracked line: its tip has left the
-        view, and until it is seen again or forgotten no other line is taken for it (one
-        needle is there). Sets ``_out_of_view`` for this frame and ``_out_of_sight`` until
-        then."""
-        p = self.params
-        r = seg.refused
-        if seg or r is None or self._accepted_run < p.confirm_after_frames or \
-                not runs_out(r) or not self._same_line(r):
-            return False
-        self._out_of_view = self._out_of_sight = True
-        return True
 
     def _expected_thetas(self) -> np.ndarray | None:
         """Line directions within ``angle_window_deg`` of the expected insertion angle, from

@@ -1,0 +1,52 @@
+"""The `line` tracker's rules for a confirmed track (``confirm_after_frames`` tip measurements
+accepted in a row): a new line from its entry longer than the needle could have grown is the
+needle merged with a tissue line beside it, and a needle seen running on out of view holds the
+track. A mixin of :class:`~._inplane_line.LineTracker`, whose state it reads (``params``,
+``features``, the filter and the tracked line) and whose frame flags it sets."""
+
+from __future__ import annotations
+
+from ..backends import NeedleLine, chi2_gate
+
+__all__ = ["ConfirmedTrack"]
+
+
+class ConfirmedTrack:
+    """What a confirmed track rules out (see the module's doc)."""
+
+    @property
+    def _confirmed(self) -> bool:
+        return self._accepted_run >= self.params.confirm_after_frames
+
+    def _outgrown(self, seg: NeedleLine, t: float, shares_entry) -> bool:
+        """Whether ``seg``, another line than the one tracked, enters within
+        ``entry_margin_mm`` of where the confirmed needle still held by the filter entered
+        (``confirm_after_frames``) but is longer
+        than that needle could have grown since it was last seen: at the filter's speed prior
+        (``initial_speed_std_mm_s``, at its gate's probability) plus the search's bridged gap.
+        That is the same insertion merged on the map with a tissue line that runs on beside it
+        (an interface), not the needle's new line. Learned features only: with classical ones
+        a confirmed track can itself be a needle-like tissue line entering where the needle
+        does, and the longer line from that entry the needle."""
+        p = self.params
+        if self.features.kind != "learned" or self._x is None or self._entry_mm is None or \
+                self._seen_t is None or not self._confirmed:
+            return False
+        if not shares_entry(seg):
+            return False
+        speed = p.initial_speed_std_mm_s * chi2_gate(1, p.gate_probability)
+        reach = speed * max(t - self._seen_t, self.dt_s) + p.search.gap_mm
+        return seg.length_mm - self._longest_mm > reach
+
+    def _runs_out_on_axis(self, seg: NeedleLine, runs_out) -> bool:
+        """Whether the search result ``seg`` is the confirmed needle (``confirm_after_frames``)
+        refused because it runs on out of view along its tracked line: its tip has left the
+        view, and until it is seen again or forgotten no other line is taken for it (one
+        needle is there). Sets ``_out_of_view`` for this frame and ``_out_of_sight`` until
+        then."""
+        r = seg.refused
+        if seg or r is None or not self._confirmed or not runs_out(r) or \
+                not self._same_line(r):
+            return False
+        self._out_of_view = self._out_of_sight = True
+        return True
