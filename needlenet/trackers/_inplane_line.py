@@ -181,7 +181,7 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
         return inner_region(frame, self.params.mask_edge_mm)
 
     def _validity(self, frame: Frame, inner: np.ndarray):
-        """Three functions of a segment, from where its ends lie against the edge of the
+        """Five functions of a segment, from where its ends lie against the edge of the
         region ``inner`` (where evidence is read) and its echo in the image:
 
         - the test it must pass to be a needle whose tip is in view: it must not run across
@@ -200,6 +200,9 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
           view), else 0;
         - its look alone, at a given level (long and strong enough, tip in view, echo): the
           test of a line beside the needle (:class:`StillLines`), wherever it lies.
+        - whether its deeper end lies at the edge of the view (a needle running on out of
+          view, :class:`~._inplane_line_confirmed.ConfirmedTrack`);
+        - whether it enters within ``entry_margin_mm`` of where the tracked needle entered.
         """
         p = self.params
         reach = max(p.edge_margin_mm, p.entry_margin_mm) + 1.0
