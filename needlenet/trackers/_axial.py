@@ -550,8 +550,11 @@ class AxialTracker(Tracker):
         if not spots:
             return None, float(z.max()), "no cross-section: no compact spot on the map"
         idx, score = spots[0], float(z[spots[0]])
-        if score < p.detect_score or float(S[idx]) < self._min_peak():
+        if score < p.detect_score:
             return None, score, f"no cross-section (score {score:.1f} < {p.detect_score})"
+        if float(S[idx]) < self._min_peak():
+            return None, score, (f"no cross-section (smoothed peak {float(S[idx]):.2f} < "
+                                 f"{self._min_peak():g})")
         if not self._is_learned() and len(spots) > 1 and \
                 score < p.detect_ratio * max(float(z[spots[1]]), 0.0):
             return None, score, (f"no cross-section: the best spot (score {score:.1f}) does "
