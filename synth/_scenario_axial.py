@@ -15,6 +15,8 @@ from ._scenario_base import (
     _check_positive,
     _const_pose,
     _n_frames,
+    _with_structures,
+    interface_along,
     random_scattering_map,
 )
 from ._world import NeedlePath, Tissue, World
@@ -25,7 +27,11 @@ __all__ = ["AxialScenario", "ServoScenario", "ye_insertion_velocity"]
 @dataclass(frozen=True)
 class AxialScenario(_Base):
     """Carriere 2016: transverse (axial) slices every 0.5 mm following a curved 18 G
-    brachytherapy needle (bicycle model), bevel rotated by 180 degrees at depth D."""
+    brachytherapy needle (bicycle model), bevel rotated by 180 degrees at depth D.
+
+    Beyond the protocol (for training and robustness tests): a bright interface along the
+    insertion axis, which every slice cuts across as a line, and a slice that leads the tip
+    (``plane_lag_mm`` < 0: slices past the tip, without the needle)."""
 
     step_mm: float = 0.5
     frame_rate_hz: float = 20.0
@@ -39,9 +45,22 @@ class AxialScenario(_Base):
     depth_mm: float = 38.4
     plane_lag_mm: float = 0.25  # the slice sits this far behind the tip
     gauge: int = 18
+    # a bright interface along the insertion axis at this signed distance from the needle's
+    # entry (mm, positive: deeper), tilted by interface_tilt_deg from the lateral axis; None:
+    # none
+    interface_offset_mm: float | None = None
+    interface_tilt_deg: float = 0.0
+    interface_brightness: float = 3.0  # amplitude gain at the boundary
+    interface_factor: float = 1.0  # echogenicity beyond it (deeper side)
 
     modality = "axial"
     paper = "Carriere 2016"
+
+    def validate(self) -> None:
+        super().validate()
+        t = self.interface_tilt_deg
+        if not (isinstance(t, (int, float)) and np.isfinite(t) and abs(t) < 80.0):
+            raise ValueError(f"interface_tilt_deg must be within (-80, 80), got {t!r}")
 
     def draw(self, rng: np.random.Generator) -> dict:
         R = self.radius_of_curvature_mm
@@ -65,8 +84,13 @@ class AxialScenario(_Base):
         smap = random_scattering_map(np.random.default_rng(d["map_rng"]), lo, hi, p.background,
                                      plane_bias=False, distractors=p.distractors)
         phi = np.deg2rad(d["bend_phi_deg"])
-        # needle along +y (the probe's elevation): the probe is stepped along it
         entry = np.array([d["lateral_mm"], 0.0, p.needle_depth_mm])
+        if p.interface_offset_mm is not None:
+            tilt = np.deg2rad(p.interface_tilt_deg)
+            smap = _with_structures(smap, **interface_along(
+                entry, [np.cos(tilt), 0.0, np.sin(tilt)], [0.0, 1.0, 0.0], p.interface_offset_mm,
+                p.interface_brightness, p.interface_factor))
+        # needle along +y (the probe's elevation): the probe is stepped along it
         path = NeedlePath(entry=entry, direction=[0, 1, 0],
                           radius_of_curvature_mm=d["radius_of_curvature_mm"],
                           bend_direction=[np.cos(phi), 0.0, np.sin(phi)],

@@ -70,6 +70,26 @@ def random_scattering_map(rng: np.random.Generator, lo, hi, background: str,
     )
 
 
+def _with_structures(smap: ScatteringMap, **extra) -> ScatteringMap:
+    """``smap`` with structures appended: each keyword names a ScatteringMap array field and
+    gives the rows to add to it."""
+    return dataclasses.replace(smap, **{
+        k: np.concatenate([np.asarray(getattr(smap, k), float).reshape(
+            (-1,) + np.shape(v)[1:]), np.asarray(v, float)]) for k, v in extra.items()})
+
+
+def interface_along(point, u, v, offset_mm: float, brightness: float, factor: float) -> dict:
+    """A bright interface (fascia, a tendon's or an organ's boundary): the plane spanned by
+    directions ``u`` and ``v`` through ``point``, moved by ``offset_mm`` along its normal
+    taken to point deeper (+z). The ScatteringMap rows to append (:func:`_with_structures`)."""
+    n = np.cross(np.asarray(u, float), np.asarray(v, float))
+    n /= np.linalg.norm(n)
+    n = n if n[2] >= 0 else -n
+    return {"interface_normals": [n],
+            "interface_offsets": [float(n @ np.asarray(point, float)) + float(offset_mm)],
+            "interface_factors": [float(factor)], "interface_brightness": [float(brightness)]}
+
+
 def _check_positive(name: str, v) -> None:
     if v is not None and (not np.isfinite(v) or v <= 0):
         raise ValueError(f"{name} must be positive, got {v}")

@@ -3,7 +3,6 @@ from either side, through the skin or the side of the view."""
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,6 +15,8 @@ from ._scenario_base import (
     _breathing,
     _const_pose,
     _n_frames,
+    _with_structures,
+    interface_along,
     random_scattering_map,
 )
 from ._world import NeedlePath, ScatteringMap, Tissue, World
@@ -25,14 +26,6 @@ __all__ = ["ENTRY_EDGES", "SIDES", "InplaneScenario"]
 
 SIDES = ("right", "left")
 ENTRY_EDGES = ("top", "side")
-
-
-def _with_structures(smap: ScatteringMap, **extra) -> ScatteringMap:
-    """``smap`` with structures appended: each keyword names a ScatteringMap array field and
-    gives the rows to add to it."""
-    return dataclasses.replace(smap, **{
-        k: np.concatenate([np.asarray(getattr(smap, k), float).reshape(
-            (-1,) + np.shape(v)[1:]), np.asarray(v, float)]) for k, v in extra.items()})
 
 
 @dataclass(frozen=True)
@@ -176,16 +169,10 @@ class InplaneScenario(_Base):
         p = self
         extra: dict = {}
         if p.interface_offset_mm is not None:
-            # the plane holding the needle's in-plane direction and the elevation axis,
-            # moved along its normal (pointing deeper) by the offset
+            # the plane holding the needle's in-plane direction and the elevation axis
             u = np.array([direction[0], 0.0, direction[2]])
-            u /= np.linalg.norm(u)
-            n = np.array([-u[2], 0.0, u[0]])
-            n = n if n[2] >= 0 else -n
-            extra.update(interface_normals=[n],
-                         interface_offsets=[float(n @ entry) + p.interface_offset_mm],
-                         interface_factors=[p.interface_factor],
-                         interface_brightness=[p.interface_brightness])
+            extra.update(interface_along(entry, u, [0.0, 1.0, 0.0], p.interface_offset_mm,
+                                         p.interface_brightness, p.interface_factor))
         vs = d.get("vessels", [])
         if vs:
             half = 3.0 * max(p.width_mm, p.depth_mm)

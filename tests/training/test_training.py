@@ -327,6 +327,31 @@ def test_randomised_inplane_worlds_are_deterministic_and_wide():
     assert 0.05 < np.mean([d["needle_free"] for d in draws]) < 0.15
 
 
+def test_randomised_axial_worlds_are_deterministic_and_wide():
+    from training.data import randomize
+
+    def world(seed):
+        name, kw = randomize("axial", np.random.default_rng(seed))
+        kw.update(width_mm=12.0, depth_mm=12.0)  # a small slice: the same draws, faster
+        return name, kw, synth.generate(name, seed=seed, frames=2, **kw)
+
+    (na, ka, a), (nb, kb, b) = world(4), world(4)
+    assert na == nb and ka == kb
+    np.testing.assert_array_equal(a.images, b.images)
+    draws = [randomize("axial", np.random.default_rng(s)) for s in range(400)]
+    carriere = [kw for name, kw in draws if name == "axial"]
+    assert {name for name, _ in draws} == {"axial", "servo"}
+    f0 = np.array([kw["imaging_overrides"]["center_frequency_mhz"] for _, kw in draws])
+    assert 2.5 <= f0.min() < 3.0 and 13.0 < f0.max() <= 15.0
+    assert 0.25 < np.mean(["sector_half_angle_deg" in kw["imaging_overrides"]
+                           for _, kw in draws]) < 0.45
+    iface = [kw for kw in carriere if "interface_offset_mm" in kw]
+    assert 0.25 < len(iface) / len(carriere) < 0.45
+    assert all(1.0 <= abs(kw["interface_offset_mm"]) <= 8.0 for kw in iface)
+    past = np.array([kw["plane_lag_mm"] for kw in carriere])
+    assert 0.1 < np.mean(past < -2.0) < 0.35 and past.min() >= -6.0
+
+
 def test_the_inplane_recipe_is_the_shipped_models():
     # the shipped in-plane model was trained on the narrow worlds with the robust
     # normalisation: the recipe that 'needlenet train inplane' runs must say the same
@@ -344,6 +369,17 @@ def test_the_inplane_recipe_is_the_shipped_models():
     assert not any("side" in d for d in draws)  # the scenario's top-right entry
     with pytest.raises(ValueError, match="inplane_worlds"):
         DataConfig(inplane_worlds="medium")
+
+
+def test_the_axial_recipe_is_the_shipped_models():
+    # the shipped axial model was trained on the wide axial worlds with the robust
+    # normalisation: its metadata and the recipe must agree
+    from needlenet.features import learned_features
+    from training.train import DEFAULTS
+
+    data = DEFAULTS["axial"].data
+    assert learned_features("axial").normalization["mode"] == data.normalization == "robust"
+    assert learned_features("axial").spacing_mm == (data.spacing_mm, data.spacing_mm)
 
 
 def test_tip_target_marks_where_the_visible_shaft_ends():
