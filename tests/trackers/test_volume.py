@@ -436,3 +436,36 @@ def test_learned_initialisation_prefers_the_clearly_more_likely_needle():
     assert np.linalg.norm(first_tip("likelihood", ratio=2.5) - (t_entry + 17.0 * v)) < 1.5
     with pytest.raises(ValueError, match="init_select"):
         VolumeTrackerParams(init_select="best")
+
+
+@pytest.mark.parametrize("floor, starts", [(0.25, False), (0.0, True)])
+def test_roi_rk_starts_only_on_a_needle_the_map_believes_in(floor, starts):
+    # a faint structure on the map (peak likelihood 0.2), as an interface's sheet gives: a line
+    # fits it, but the map does not call it a needle (the floor of Chatelain's tracker)
+    grid, image, entry, tip, _ = _learned_case(12.0)
+    tracker = VolumeTracker("roi-rk", features=_TubeLikelihood(entry, tip, scale=0.2), rng=0,
+                            params=VolumeTrackerParams(init_min_likelihood=floor))
+    est = tracker.update(Frame(image, grid, t=0.0))
+    assert (est.status == Status.TRACKING) == starts
+    if not starts:
+        assert est.tip_mm is None and "median likelihood" in est.reason
+
+
+@pytest.mark.parametrize("floor, starts", [(1.8, False), (0.0, True)])
+def test_roi_rk_classical_starts_only_on_a_line_brighter_than_tissue(floor, starts):
+    # a 1 mm tube at grey 60 from the volume's face over noise of mean 35: a line the
+    # tubularness finds, 1.7 times the tissue 2-3 mm around it (Chatelain's tracker starts at
+    # 1.8)
+    grid, image, entry, tip, u = _learned_case(14.0)
+    x, y, z = grid.point_grids()
+    pts = np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+    t = np.clip((pts - entry) @ u, 0.0, 14.0)
+    d = np.linalg.norm(pts - (entry + t[..., None] * u), axis=-1)
+    image = np.where(d < 1.0, 60, image).astype(np.uint8)
+    tracker = VolumeTracker("roi-rk", rng=0, params=VolumeTrackerParams(init_min_contrast=floor))
+    est = tracker.update(Frame(image, grid, t=0.0))
+    assert (est.status == Status.TRACKING) == starts
+    if starts:
+        assert np.linalg.norm(est.tip_mm - tip) < 1.5
+    else:
+        assert est.tip_mm is None and "not brighter than the tissue" in est.reason

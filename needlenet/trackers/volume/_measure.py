@@ -26,7 +26,7 @@ from ...backends import (
     within_angle,
 )
 from ._geometry import Volume, profile, run_out_distance
-from ._placement import image_tip, refine_on_image, tip_on_map
+from ._placement import image_tip, needle_contrast, refine_on_image, tip_on_map
 from .params import MeasurementParams, VolumeTrackerParams
 
 __all__ = ["Measurement", "candidates", "fail", "locate", "measure", "median_profile",
@@ -151,6 +151,25 @@ def median_profile(vol: Volume, model, a0: float, a1: float, mp: MeasurementPara
     if a.size == 0:
         return 0.0
     return float(np.median(profile(vol, model, a, mp.profile_radius_mm)))
+
+
+def implausible_start(vol: Volume, m: Measurement, p: VolumeTrackerParams,
+                      min_likelihood: float, min_contrast: float) -> str | None:
+    """Why a found axis is no needle to start a track on, or None: on a learned map, a median
+    likelihood along it below ``min_likelihood`` (the map does not see a needle there: an
+    interface's sheet, tissue); on a classical image, a needle no more than ``min_contrast``
+    times as bright as the tissue 2-3 mm around it. 0 turns a test off."""
+    if vol.learned and min_likelihood > 0:
+        likely = median_profile(vol, m.model, m.a_entry, m.a_tip, p.measurement)
+        if likely < min_likelihood:
+            return (f"the map does not see a needle there: median likelihood {likely:.2f} < "
+                    f"{min_likelihood}")
+    if not vol.learned and min_contrast > 0:
+        contrast = needle_contrast(vol, m.model, m.a_entry, m.a_tip, p.placement)
+        if contrast < min_contrast:
+            return (f"not brighter than the tissue around it: the image along the fit is "
+                    f"{contrast:.2f} times the tissue 2-3 mm away (< {min_contrast})")
+    return None
 
 
 def _between(a: np.ndarray, lo: float, hi: float) -> np.ndarray:

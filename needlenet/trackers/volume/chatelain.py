@@ -25,8 +25,7 @@ from ...features import Frame
 from .._base import NeedleEstimate, Status
 from ._base import StateFilter, VolumeTracker
 from ._geometry import Volume, ball, boundary_distance, cylinder, run_out_distance, voxel_count
-from ._measure import Measurement, fail, measure, median_profile, threshold
-from ._placement import needle_contrast
+from ._measure import Measurement, fail, implausible_start, measure, threshold
 
 __all__ = ["ChatelainTracker", "ControlPoints"]
 
@@ -248,18 +247,9 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
             return fail(f"the needle runs out of the volume: its tip is {tip_gap:.1f} mm from "
                         f"the sector's boundary (< {c.start_tip_margin_mm} mm)", m.trials,
                         m.roi_voxels, m.inliers)
-        if not vol.learned and c.start_min_contrast > 0:
-            contrast = needle_contrast(vol, m.model, m.a_entry, m.a_tip, p.placement)
-            if contrast < c.start_min_contrast:
-                return fail(f"not brighter than the tissue around it: the image along the fit "
-                            f"is {contrast:.2f} times the tissue 2-3 mm away (< "
-                            f"{c.start_min_contrast})", m.trials, m.roi_voxels, m.inliers)
-        if vol.learned:
-            likely = median_profile(vol, m.model, m.a_entry, m.a_tip, mp)
-            if likely < c.start_min_likelihood:
-                return fail(f"the map does not see a needle there: median likelihood "
-                            f"{likely:.2f} < {c.start_min_likelihood}", m.trials,
-                            m.roi_voxels, m.inliers)
+        why = implausible_start(vol, m, p, c.start_min_likelihood, c.start_min_contrast)
+        if why is not None:
+            return fail(why, m.trials, m.roi_voxels, m.inliers)
         if c.n_control_points == 3:
             m = measure(vol, region, level, p, self.rng,
                         max_trials=mp.init_max_trials, predicted_direction=m.direction,

@@ -246,6 +246,13 @@ class RoiRkParams:
     init_select_ratio : float
         A competitor replaces RANSAC's choice when the map's median along it is more than this
         many times the choice's: a long tissue line can out-support a short, likely needle.
+    init_min_likelihood : float
+        Learned features: a found axis whose median likelihood is below this is set aside (0:
+        no floor). The figure of Chatelain's tracker: an interface, a sheet on the map, gives
+        RANSAC a line along it at a likelihood well under a needle's.
+    init_min_contrast : float
+        Classical features: a found axis whose image is not this many times as bright as the
+        tissue 2-3 mm around it is set aside (0: no test); Chatelain's tracker's figure.
     roi_radius_mm : float
         R_ROI of eq. (1) (not given): five needle radii, Zhao's contrast cylinder (eq. (9)),
         wide for the initial axis error and a moving tip, narrow for an inlier ratio > 0.4.
@@ -277,6 +284,8 @@ class RoiRkParams:
     init_attempts: int = 5
     init_select: str = "likelihood"
     init_select_ratio: float = 1.2
+    init_min_likelihood: float = 0.25
+    init_min_contrast: float = 1.8
     roi_radius_mm: float = 2.5
     max_axis_jump_deg: float = 15.0
     max_axis_shift_mm: float = 2.5
@@ -296,7 +305,8 @@ class RoiRkParams:
                                "speckle_kernel_mm", "q_angle", "q_tip", "r_angle",
                                "r_position", "r_velocity", "p0_angle_rate", "p0_velocity",
                                "init_select_ratio"))
-        _check_non_negative(self, ("speckle_search_mm",))
+        _check_non_negative(self, ("speckle_search_mm", "init_min_likelihood",
+                                   "init_min_contrast"))
         _check_integers(self, (("init_attempts", 1),))
         if self.init_select not in ("support", "likelihood"):
             raise ValueError(f"init_select must be 'support' or 'likelihood', "

@@ -30,7 +30,15 @@ from ...features import Frame, FrangiFeatures
 from .._base import NeedleEstimate, Status
 from ._base import StateFilter, VolumeTracker, angles, wrap
 from ._geometry import Volume, cylinder
-from ._measure import Measurement, candidates, fail, measure, median_profile, threshold
+from ._measure import (
+    Measurement,
+    candidates,
+    fail,
+    implausible_start,
+    measure,
+    median_profile,
+    threshold,
+)
 
 __all__ = ["ANGLES", "ANGLE_RATES", "STATE_SIZE", "TIP", "TIP_VELOCITY", "RoiRkTracker"]
 
@@ -184,6 +192,10 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
             if m.ok and m.entry_gap_mm > mp.entry_margin_mm:
                 m = fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
                          f"mm inside the sector", m.trials, m.roi_voxels, m.inliers)
+            why = None if not m.ok else implausible_start(vol, m, p, r.init_min_likelihood,
+                                                          r.init_min_contrast)
+            if why is not None:
+                m = fail(why, m.trials, m.roi_voxels, m.inliers)
             if m.ok and not choose:
                 return m
             if m.ok:
