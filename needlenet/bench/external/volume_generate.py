@@ -10,7 +10,8 @@ and the tissue each piece hollows and shadows, each projected onto the slice wit
 elevation weights; electronic noise drawn per slice and volume. All are beamformed (``dasmtx``)
 as separate columns and compounded over the transmits. Slice k of volume t = the tissue + the
 interface + the noise (k, t) + the hollowing and shadowing of the pieces up to t + the needle's
-echo: its pieces up to t and the bevel at t.
+echo: its pieces up to t and the bevel at t. Receive apertures are Hann-weighted
+(:func:`hann_receive`); the in-plane and axial sets' are rectangular.
 
 Display (shared with the in-plane and axial sets, :mod:`.generate`): a fixed depth gain (TGC)
 from the middle slice's tissue, the display gain that puts the tissue's mean grey at the
@@ -49,7 +50,7 @@ from .volume import (
 )
 from .volume_specs import VOLUME_PROBES, VolumeProbe, VolumeSpec, fine_setup
 
-__all__ = ["CONTRAST_BAND_MM", "INTERFACE_BAND_MM", "generate_volume"]
+__all__ = ["CONTRAST_BAND_MM", "INTERFACE_BAND_MM", "generate_volume", "hann_receive"]
 
 # the needle's and the interface's contrasts are measured over the voxels this close to the
 # needle's wall facing the probe, or to the interface's plane (one voxel either side)
@@ -118,16 +119,52 @@ def _scene(spec: VolumeSpec, vp: VolumeProbe, dom: _Domain, lam: float, cell: fl
                 n_tissue=n_tissue, n_hollow=n_hollow, n_needle=n_needle)
 
 
+def hann_receive(das, element_x_mm: np.ndarray, pixel_x_mm: np.ndarray, n_t: int,
+                 pitch_mm: float):
+    """A DAS matrix (pixels x elements * n_t samples, as ``dasmtx`` makes it) with each
+    pixel's receive aperture (the elements the f-number gives it) weighted by a Hann window
+    cos^2(pi/2 |x_e - x_p| / (a + pitch / 2)), a the pixel's farthest element used: a
+    rectangular aperture's -13 dB sidelobes put arcs of a bright needle's echo above the
+    tissue across the slice."""
+    m = das.tocsr(copy=True)
+    counts = np.diff(m.indptr)
+    rows = np.repeat(np.arange(m.shape[0]), counts)
+    dx = np.abs(element_x_mm[m.indices // n_t] - pixel_x_mm[rows])
+    half = np.zeros(m.shape[0])
+    used = counts > 0
+    half[used] = np.maximum.reduceat(dx, m.indptr[:-1][used])
+    m.data = m.data * np.cos(0.5 * np.pi * dx / (half[rows] + 0.5 * pitch_mm)) ** 2
+    return m
+
+
+def _scanner(setup, dom: _Domain):
+    """The in-plane sets' scanner (:mod:`.simulate`) beamforming with :func:`hann_receive`."""
+    from .simulate import _Scanner
+
+    class _HannScanner(_Scanner):
+        def beamform(self, k: int, iq: np.ndarray) -> np.ndarray:
+            n_t = iq.shape[0]
+            if (k, n_t) not in self._das:  # build the matrix, then weight it once
+                super().beamform(k, iq[..., :1])
+                xe = np.ravel(self.param.getElementPositions()[0]) * 1e3
+                self._das[(k, n_t)] = hann_receive(
+                    self._das[(k, n_t)], xe, self.dom.bf_x.reshape(-1, order="F"), n_t,
+                    float(self.param.pitch) * 1e3)
+            return super().beamform(k, iq)
+
+    return _HannScanner(setup, dom)
+
+
 def _simulate(spec: VolumeSpec, vp: VolumeProbe, log, cell_mm2: float | None) -> dict:
     """Beamformed components (bf-grid I/Q, compounded; complex64) and the scene."""
     import pymust
 
-    from .simulate import _cell_area_mm2, _Scanner
+    from .simulate import _cell_area_mm2
 
     setup = fine_setup(vp)
     lam = _C / pymust.getparam(setup.model).fc * 1e3
     dom = _Domain(setup, lam)
-    sc = _Scanner(setup, dom)
+    sc = _scanner(setup, dom)
     rng = np.random.default_rng(spec.seed)
     cell = _cell_area_mm2(sc, dom) if cell_mm2 is None else cell_mm2
     scene = _scene(spec, vp, dom, lam, cell, rng)

@@ -98,11 +98,12 @@ def elevation_fwhm_mm(vp: VolumeProbe, depth_mm, wavelength_mm: float):
 
 
 VOLUME_PROBES = {
-    # 128 elements, 7.6 MHz; one plane wave per slice (a swept probe's frame rate, and a third
-    # of the three-transmit cost), 5 scatterers per resolution cell (the 0.5 mm voxels average
-    # about 3 cells each). Elevation: 5 mm elements, lens focus 18 mm (data sheet).
+    # 128 elements, 7.6 MHz; the in-plane set's three plane waves compounded (one plane wave
+    # left lateral arcs of the needle's echo brighter than the tissue across the slice), 5
+    # scatterers per resolution cell (the 0.5 mm voxels average about 3 cells each).
+    # Elevation: 5 mm elements, lens focus 18 mm (data sheet).
     # 48 x 40 x 32 voxels: 24 x 20 x 16 mm, 6-22 mm deep.
-    "L11-5v": VolumeProbe(replace(PROBES["L11-5v"], tilts_deg=(0.0,), scatterers_per_cell=5.0),
+    "L11-5v": VolumeProbe(replace(PROBES["L11-5v"], scatterers_per_cell=5.0),
                           x_mm=(-11.75, 11.75), z_mm=(6.25, 21.75), n_slices=40,
                           elevation_aperture_mm=5.0, elevation_focus_mm=18.0),
     # 64 elements, 2.7 MHz; the in-plane set's three diverging waves on a 48-degree sector.
