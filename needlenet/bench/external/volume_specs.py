@@ -108,7 +108,7 @@ VOLUME_PROBES = {
                           elevation_aperture_mm=5.0, elevation_focus_mm=18.0),
     # 64 elements, 2.7 MHz; the in-plane set's three diverging waves on a 48-degree sector.
     # Elevation: 14 mm elements focused at 30 mm, in the volume (the P4-2v's own lens focuses
-    # at 60 mm, which would make 7-9 mm thick slices at 20-35 mm; a probe swept for 3-D
+    # at 60 mm, which would make 6-9 mm thick slices at 20-35 mm; a probe swept for 3-D
     # imaging focuses where it images). 64 x 36 x 56 voxels: 32 x 18 x 28 mm, 12-40 mm deep.
     "P4-2v": VolumeProbe(replace(PROBES["P4-2v"], sector_half_angle_deg=24.0),
                          x_mm=(-15.75, 15.75), z_mm=(12.25, 39.75), n_slices=36,
