@@ -12,7 +12,9 @@ angle and no gauge given, with classical and with learned features. Per sequence
 A needle frame has the needle visible (label ``visible``: the tip in the image with at least
 3 mm of shaft in view); a needle-free frame has no needle in it at all (tip label NaN). The set
 is for testing only: nothing is trained or tuned on it. A set of axial sequence files (``--data
-needlenet/data/external_axial``) runs the axial tracker instead (:mod:`._external_axial`).
+needlenet/data/external_axial``) runs the axial tracker instead (:mod:`._external_axial`), a set
+of volume files (``--data needlenet/data/external_volume``) the volume tracker
+(:mod:`._external_volume`).
 """
 
 from __future__ import annotations
@@ -84,9 +86,10 @@ def estimate_metrics(est: list, seq: synth.Sequence) -> tuple[np.ndarray, np.nda
     where none) and :func:`sequence_metrics` against the labels."""
     needle, free = frame_classes(seq)
     tracking = np.array([e.status.value == "tracking" for e in est])
-    tip_est = np.array([np.full(2, np.nan) if e.tip_mm is None
-                        else np.asarray(e.tip_mm, float) for e in est])
-    tip_true = np.full((seq.n_frames, 2), np.nan) if seq.tip_mm is None \
+    nd = seq.ndim  # points (x, z) in 2D frames, (x, y, z) in volumes
+    tip_est = np.array([np.full(nd, np.nan) if e.tip_mm is None
+                        else np.asarray(e.tip_mm, float) for e in est]).reshape(-1, nd)
+    tip_true = np.full((seq.n_frames, nd), np.nan) if seq.tip_mm is None \
         else np.asarray(seq.tip_mm, float)
     return tracking, tip_est, sequence_metrics(tracking, tip_est, tip_true, needle, free)
 
@@ -143,25 +146,28 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
     """Track every sequence of the set with classical and learned features; one row per
     sequence and features, then one pooled row per features. ``directory``: another set of
     labelled sequence files (every ``.npz`` in it, all of them even with ``quick``), all
-    in-plane or all axial; ``model``: the learned features' ONNX model (default: the shipped
-    one)."""
+    in-plane, all axial or all volume; ``model``: the learned features' ONNX model (default:
+    the shipped one of the set's modality)."""
     from ._trackers import _feature_kinds, _tier
 
     tier = _tier(quick, tier)
     rows = [] if rows is None else rows
     names = QUICK_SEQUENCES if tier == "quick" and directory is None else None
     seqs = external_sequences(directory, names)
-    modality = seqs[0][1].modality if seqs and seqs[0][1].modality == "axial" else "inplane"
+    first = seqs[0][1].modality if seqs else "inplane"
+    modality = first if first in ("axial", "volume") else "inplane"
     for name, seq in seqs:
         if seq.modality != modality:
             raise ValueError(f"bench external: {name}.npz holds a {seq.modality!r} sequence; "
                              f"the suite tracks a set of {modality} sequences (the set's "
                              f"first file is {seqs[0][0]}.npz)")
     model = None if model is None else str(model)
-    if modality == "axial":
-        from ._external_axial import run_axial_set
-
-        out = run_axial_set(seqs, seed, log, rows, model)
+    if modality in ("axial", "volume"):
+        if modality == "axial":
+            from ._external_axial import run_axial_set as run_set
+        else:
+            from ._external_volume import run_volume_set as run_set
+        out = run_set(seqs, seed, log, rows, model)
         return {**out, "data": str(Path(directory) if directory is not None else data_dir())}
     log(f"  external: {len(seqs)} sequences, {sum(s.n_frames for _, s in seqs)} frames"
         + (f", learned features from {model}" if model else ""))
@@ -210,6 +216,10 @@ def markdown(result: dict, machine: dict) -> str:
         from ._external_axial import markdown_axial
 
         return markdown_axial(result, machine)
+    if any(r.get("tracker") == "volume" for r in result["rows"]):
+        from ._external_volume import markdown_volume_set
+
+        return markdown_volume_set(result, machine)
     lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
              "Default in-plane tracker (no angle, no gauge given). Tip error over needle frames "
              "reported `tracking`; tracked: needle frames reported `tracking`; false: "

@@ -23,13 +23,14 @@ def add_parser(sub) -> None:
     p.add_argument("--report", help="write a report directory: report.md, results.json, plots")
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--data", metavar="DIR",
-                   help="external suite: a directory of labelled in-plane (or axial) "
+                   help="external suite: a directory of labelled in-plane (or axial, or volume) "
                         "sequence files (.npz, needlenet's sequence format) to run instead of "
                         "the shipped in-plane PyMUST set, e.g. your own labelled recordings or "
-                        "the shipped axial set needlenet/data/external_axial")
+                        "the shipped axial set needlenet/data/external_axial or volume set "
+                        "needlenet/data/external_volume")
     p.add_argument("--model", metavar="F.onnx",
-                   help="external suite: the in-plane (axial, for an axial set) model for the "
-                        "learned features (default: the shipped one)")
+                   help="external suite: the in-plane (axial or volume, for such a set) model for "
+                        "the learned features (default: the shipped one)")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing --json file or report")
     p.set_defaults(func=run)
@@ -59,7 +60,7 @@ def run(args) -> int:
             if first:
                 from synth import load_sequence
 
-                modality = "axial" if load_sequence(first[0]).modality == "axial" else "inplane"
+                modality = load_sequence(first[0]).modality  # inplane, axial or volume
         try:  # the checks every model passes before it tracks anything
             learned_features(modality, args.model)
         except ValueError as exc:  # ModelError included

@@ -2,8 +2,9 @@
 
 Run ``python -m needlenet.bench.external.generate --out DIR [--only NAME ...]``; it writes one
 sequence file per entry of :data:`SPECS` (``DIR/NAME.npz``); ``--set axial`` writes the axial
-set instead (:mod:`.axial_generate`). PyMUST (``pip install
-'needlenet[external]'``) is imported by the generator only; the runtime never needs it.
+set instead (:mod:`.axial_generate`), ``--set volume`` the volume set (:mod:`.volume_generate`).
+PyMUST (``pip install 'needlenet[external]'``) is imported by the generator only; the runtime
+never needs it.
 
 Image formation, per sequence and per transmit (PyMUST ``simus``, 2D, a linear model with single
 scattering, so the RF of a sum of scatterer sets is the sum of their RFs):
@@ -290,12 +291,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m needlenet.bench.external.generate",
                                  description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, type=Path, help="directory for the .npz files")
-    ap.add_argument("--set", choices=sorted(SETS) + ["axial", "axial-validation"],
+    ap.add_argument("--set", choices=sorted(SETS) + ["axial", "axial-validation", "volume",
+                                                     "volume-validation"],
                     default="test",
                     help="the test set (needlenet/data/external), the validation set for "
                          "choosing between models, the axial test set "
                          "(needlenet/data/external_axial) or its validation set "
-                         "(needlenet/data/validation_axial) (default: test)")
+                         "(needlenet/data/validation_axial), the volume test set "
+                         "(needlenet/data/external_volume) or its validation set "
+                         "(needlenet/data/validation_volume) (default: test)")
     ap.add_argument("--only", nargs="+", metavar="NAME", help="generate these sequences only")
     ap.add_argument("--frames", type=int, help="override the frame count (quick looks only)")
     ap.add_argument("--scatterers-per-cell", type=float,
@@ -312,6 +316,11 @@ def main(argv: list[str] | None = None) -> int:
 
         chosen = AXIAL_SPECS if args.set == "axial" else AXIAL_VALIDATION_SPECS
         make = generate_axial
+    elif args.set in ("volume", "volume-validation"):
+        from .volume_generate import generate_volume
+        from .volume_specs import VOLUME_SETS
+
+        chosen, make = VOLUME_SETS[args.set], generate_volume
     else:
         chosen, make = SETS[args.set], generate
     names = {s.name for s in chosen}
@@ -324,7 +333,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for spec in specs:
         if args.frames:
-            spec = replace(spec, n_frames=args.frames)
+            key = "n_volumes" if args.set.startswith("volume") else "n_frames"
+            spec = replace(spec, **{key: args.frames})
         make(spec, args.out, log=lambda m: print(m, flush=True),
              scatterers_per_cell=args.scatterers_per_cell)
     print(f"done: {len(specs)} sequences in {time.perf_counter() - t0:.0f} s", flush=True)
