@@ -39,6 +39,7 @@ from .generate import (
     _tgc_gain,
     _white_level,
     common_meta,
+    run_meta,
 )
 from .scene import _C, CONTRAST_RADIUS_MM, _Domain, _interface_line
 from .specs import ProbeSetup
@@ -217,14 +218,7 @@ def generate_axial(spec: AxialSpec, out_dir: Path, log=print,
         "resolution_cell_mm2": sim["cell"],
         "scatterers_per_mm3": sim["rho3"],
         "n_tissue_scatterers": sim["n_tissue"],
-        "wavelength_mm": sim["wavelength_mm"],
-        "fc_hz": float(sim["param"].fc),
-        "display_white_db": res["white_db"],
-        "needle_scale": res["needle_scale"],
-        "interface_scale": res["interface_scale"],
-        "simus_s": round(sim["simus_s"], 1),
-        "simus_calls": sim["simus_calls"],
-        "generation_s": round(time.perf_counter() - t0, 1),
+        **run_meta(sim, res, t0),
         "frames": "slice k lies at y = k * step_mm in the world frame (the probe frame of "
                   "slice 0); probe_pose maps each slice's probe frame to it",
         "centerline_frame": "world (x, y, z) mm, the probe frame of slice 0",

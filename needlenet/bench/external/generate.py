@@ -211,7 +211,8 @@ def _compose(sim: dict, spec: SequenceSpec):
 
 
 def common_meta(spec, setup: ProbeSetup, needle_radius_mm: float | None) -> dict:
-    """The ``meta`` entries every sequence of an external set carries (in-plane or axial):
+    """The ``meta`` entries every sequence of an external set carries (in-plane, axial or
+    volume):
     where it comes from, its spec, probe and needle."""
     return {
         "source": "pymust",
@@ -225,6 +226,22 @@ def common_meta(spec, setup: ProbeSetup, needle_radius_mm: float | None) -> dict
         "gauge": spec.gauge if spec.needle else None,
         "needle_radius_mm": needle_radius_mm,
     }
+
+def run_meta(sim: dict, res: dict, t0: float) -> dict:
+    """The ``meta`` entries of how an axial or volume sequence was made: the transmit's
+    wavelength and centre frequency, the display's white level, the needle's and interface's
+    echo scales, and the time taken (``t0``: ``time.perf_counter()`` at the start)."""
+    return {
+        "wavelength_mm": sim["wavelength_mm"],
+        "fc_hz": float(sim["param"].fc),
+        "display_white_db": res["white_db"],
+        "needle_scale": res["needle_scale"],
+        "interface_scale": res["interface_scale"],
+        "simus_s": round(sim["simus_s"], 1),
+        "simus_calls": sim["simus_calls"],
+        "generation_s": round(time.perf_counter() - t0, 1),
+    }
+
 
 def generate(spec: SequenceSpec, out_dir: Path, log=print,
              scatterers_per_cell: float | None = None) -> Path:

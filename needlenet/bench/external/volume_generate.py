@@ -38,7 +38,15 @@ import numpy as np
 
 import synth
 
-from .generate import _bisect, _grey, _local_contrast, _tgc_gain, _white_level, common_meta
+from .generate import (
+    _bisect,
+    _grey,
+    _local_contrast,
+    _tgc_gain,
+    _white_level,
+    common_meta,
+    run_meta,
+)
 from .scene import _C, _Domain, _interface_line, _line_distance
 from .volume import (
     VolumeNeedle,
@@ -367,14 +375,7 @@ def generate_volume(spec: VolumeSpec, out_dir: Path, log=print,
             for b in sim["scene"]["bands"]],
         "resolution_cell_mm2": sim["cell"],
         "n_tissue_scatterers": sim["scene"]["n_tissue"],
-        "wavelength_mm": sim["wavelength_mm"],
-        "fc_hz": float(sim["param"].fc),
-        "display_white_db": res["white_db"],
-        "needle_scale": res["needle_scale"],
-        "interface_scale": res["interface_scale"],
-        "simus_s": round(sim["simus_s"], 1),
-        "simus_calls": sim["simus_calls"],
-        "generation_s": round(time.perf_counter() - t0, 1),
+        **run_meta(sim, res, t0),
         "centerline_frame": "probe",
         "centerline_coords": "x,y,z",
         "frames": "the probe frame (x lateral, y elevation: the sweep axis, z depth; mm), "
