@@ -212,8 +212,7 @@ def _compose(sim: dict, spec: SequenceSpec):
 
 def common_meta(spec, setup: ProbeSetup, needle_radius_mm: float | None) -> dict:
     """The ``meta`` entries every sequence of an external set carries (in-plane, axial or
-    volume):
-    where it comes from, its spec, probe and needle."""
+    volume): where it comes from, its spec, probe and needle."""
     return {
         "source": "pymust",
         "pymust_version": _version("pymust"),
