@@ -16,6 +16,8 @@ from ._scenario_base import (
     _breathing,
     _const_pose,
     _n_frames,
+    _with_structures,
+    interface_along,
     random_scattering_map,
 )
 from ._world import NeedlePath, Tissue, World
@@ -61,7 +63,10 @@ def _sector_entry(probe: SectorProbe, u: np.ndarray, length_mm: float,
 class VolumeScenario(_Base):
     """Zhao 2013: alpha 0/30/60/90 degrees, beta 73 degrees, needle 6 to 25 mm long at
     1 mm/s, radius 0.5 mm, CR 4.7 (group 1) or 2.0-3.5 (group 2), needle voxels N(140, 28),
-    55 x 64 x 160 sector volumes scan-converted to 128^3."""
+    55 x 64 x 160 sector volumes scan-converted to 128^3.
+
+    Beyond the protocol (for training and robustness tests): a bright interface beside the
+    needle, a plane holding its axis and rolled about it, moved off it."""
 
     alpha_deg: float | None = None  # None: drawn from (0, 30, 60, 90)
     beta_deg: float = 73.0
@@ -80,9 +85,22 @@ class VolumeScenario(_Base):
     # near 33 gray levels; over 70 dB its 99th percentile sits near Zhao's lowest threshold, 60.
     tissue_gray: float = 33.0
     dynamic_range_db: float = 70.0
+    # a bright interface (fascia, an organ's boundary) along the needle: the plane holding its
+    # axis and the level direction across it, rolled about the axis by interface_roll_deg and
+    # moved this far along its normal (mm, positive: deeper); None: none
+    interface_offset_mm: float | None = None
+    interface_roll_deg: float = 0.0
+    interface_brightness: float = 3.0  # amplitude gain at the boundary
+    interface_factor: float = 1.0  # echogenicity beyond it (deeper side)
 
     modality = "volume"
     paper = "Zhao 2013"
+
+    def validate(self) -> None:
+        super().validate()
+        r = self.interface_roll_deg
+        if not (isinstance(r, (int, float)) and np.isfinite(r) and abs(r) < 80.0):
+            raise ValueError(f"interface_roll_deg must be within (-80, 80), got {r!r}")
 
     def imaging(self) -> ImagingParams:
         return self._with_overrides(ImagingParams(
@@ -125,6 +143,14 @@ class VolumeScenario(_Base):
         u = self._direction(d["alpha_deg"])
         entry = _sector_entry(probe, u, p.stop_length_mm, np.asarray(d["centre_jitter_mm"]))
         path = NeedlePath(entry=entry, direction=u)
+        if p.interface_offset_mm is not None:
+            across = np.cross(u, [0.0, 0.0, 1.0])  # level, across the needle
+            n = float(np.linalg.norm(across))
+            across = across / n if n > 1e-6 else np.array([1.0, 0.0, 0.0])
+            roll = np.deg2rad(p.interface_roll_deg)
+            v = np.cos(roll) * across + np.sin(roll) * np.cross(u, across)
+            smap = _with_structures(smap, **interface_along(
+                entry, u, v, p.interface_offset_mm, p.interface_brightness, p.interface_factor))
         world = World(Tissue(dens, d["tissue_seed"], smap), path, p.needle_spec(None))
         dt = 1.0 / p.volume_rate_hz
         default_T = int(round((p.stop_length_mm - p.start_length_mm) / (p.speed_mm_s * dt))) + 1

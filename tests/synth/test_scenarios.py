@@ -110,6 +110,35 @@ def test_axial_interface_is_a_line_across_every_slice():
         synth.generate("axial", seed=5, **{**kw, "interface_tilt_deg": 85.0})
 
 
+def test_volume_interface_is_a_bright_plane_along_the_needle():
+    """A bright interface holding the needle's axis, rolled 10 degrees about it and moved 3 mm
+    along its normal: the volume is bright on that plane beside the needle, not 3 mm off it."""
+    s = synth.generate("volume", seed=2, frames=1, output_size=64, alpha_deg=30, cr=None,
+                       zhao_mode=False, background="homogeneous", interface_offset_mm=3.0,
+                       interface_roll_deg=10.0, interface_brightness=4.0)
+    g = s.grid()
+    u, entry = s.direction[0], s.entry_mm[0]
+    across = np.cross(u, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    roll = np.deg2rad(10.0)
+    v = np.cos(roll) * across + np.sin(roll) * np.cross(u, across)
+    n = np.cross(u, v)
+    n = n if n[2] >= 0 else -n
+
+    def plane(offset):  # points on the plane moved ``offset`` along n, beside the needle
+        a, b = np.meshgrid(np.linspace(2.0, 10.0, 9), np.linspace(-4.0, 4.0, 9))
+        pts = entry + a.reshape(-1, 1) * u + b.reshape(-1, 1) * v + offset * n
+        idx = np.rint(g.points_to_index(pts)).astype(int)
+        ok = np.all((idx >= 0) & (idx < np.array(g.shape)), axis=1)
+        vals = s.images[0][tuple(idx[ok].T)].astype(float)
+        return vals[vals > 0].mean()  # inside the sector
+
+    assert plane(3.0) > 1.3 * plane(6.0)
+    with pytest.raises(ValueError, match="interface_roll_deg"):
+        synth.generate("volume", seed=2, frames=1, output_size=32, interface_offset_mm=3.0,
+                       interface_roll_deg=85.0)
+
+
 def test_zhao_volume_contrast_ratio_and_labels():
     s = synth.generate("volume", seed=1, frames=3, cr=2.5, alpha_deg=30.0, output_size=96,
                        background="homogeneous")
