@@ -92,6 +92,7 @@ class VolumeScenario(_Base):
     interface_roll_deg: float = 0.0
     interface_brightness: float = 3.0  # amplitude gain at the boundary
     interface_factor: float = 1.0  # echogenicity beyond it (deeper side)
+    needle_free: bool = False  # a world with no needle: every volume without one (cr None)
 
     modality = "volume"
     paper = "Zhao 2013"
@@ -101,6 +102,9 @@ class VolumeScenario(_Base):
         r = self.interface_roll_deg
         if not (isinstance(r, (int, float)) and np.isfinite(r) and abs(r) < 80.0):
             raise ValueError(f"interface_roll_deg must be within (-80, 80), got {r!r}")
+        if self.needle_free and self.cr is not None:
+            raise ValueError("needle_free volumes have no needle to scale to a contrast ratio: "
+                             "give cr=None")
 
     def imaging(self) -> ImagingParams:
         return self._with_overrides(ImagingParams(
@@ -157,6 +161,8 @@ class VolumeScenario(_Base):
         T = _n_frames(p, default_T)
         t = np.arange(T) * dt
         ins = np.minimum(p.start_length_mm + p.speed_mm_s * t, path.max_length_mm)
+        if p.needle_free:
+            ins = np.zeros(T)  # the needle never enters: no echo, no labelled shaft
         tissue = _breathing(T, dt, p.tissue_motion_mm, np.random.default_rng(d["motion_rng"]))
         return Scanner(probe, imaging, world, zhao_mode=p.zhao_mode), Trajectory(
             t, ins, _const_pose(T), tissue)

@@ -139,6 +139,18 @@ def test_volume_interface_is_a_bright_plane_along_the_needle():
                        interface_roll_deg=85.0)
 
 
+def test_needle_free_volume_has_no_needle_and_the_same_tissue():
+    kw = dict(seed=2, frames=2, output_size=40, cr=None, zhao_mode=False)
+    empty = synth.generate("volume", needle_free=True, **kw)
+    with_needle = synth.generate("volume", **kw)
+    assert not empty.visible.any() and with_needle.visible.all()
+    # the same tissue: the volumes differ only around the needle (its echo, shadow, tail)
+    differ = np.abs(empty.images.astype(int) - with_needle.images.astype(int)) > 2
+    assert 0 < differ.mean() < 0.05
+    with pytest.raises(ValueError, match="needle_free"):
+        synth.generate("volume", seed=2, frames=1, output_size=32, cr=2.5, needle_free=True)
+
+
 def test_zhao_volume_contrast_ratio_and_labels():
     s = synth.generate("volume", seed=1, frames=3, cr=2.5, alpha_deg=30.0, output_size=96,
                        background="homogeneous")
