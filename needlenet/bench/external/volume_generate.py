@@ -31,7 +31,7 @@ the needle is, so it is reported, not targeted.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -347,8 +347,6 @@ def generate_volume(spec: VolumeSpec, out_dir: Path, log=print,
                     cell_mm2: float | None = None) -> Path:
     """Simulate one volume sequence and write ``out_dir/NAME.npz``. ``vp`` replaces the
     probe's volume and ``cell_mm2`` the measured resolution cell (quick looks and tests)."""
-    from dataclasses import replace
-
     t0 = time.perf_counter()
     vp = VOLUME_PROBES[spec.probe] if vp is None else vp
     if scatterers_per_cell is not None:

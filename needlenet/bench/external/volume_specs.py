@@ -140,7 +140,7 @@ class VolumeSpec:
     n_volumes: int = 6
     volume_rate_hz: float = 2.0
     gauge: int = 18
-    target_cr: float = 2.5  # Zhao 2013 eq. (9) on the last volume (see volume_generate)
+    target_cr: float = 2.5  # the wall band's contrast on the last volume (see volume_generate)
     roughness: float = 1.5  # sd of the wall scatterers' random amplitude around the coherent 1
     lower_wall_gain: float = 0.5  # the far wall's echo, behind the lumen
     bevel_length_mm: float = 1.5  # the lower wall ends this far before the tip
