@@ -328,7 +328,7 @@ class CrossSectionDetector:
         return (float(S[idx]) - med) / mad, float(S[idx]), idx, F, S
 
     def detect(self, image: np.ndarray, grid) -> tuple[bool, np.ndarray | None, float]:
-        from ..trackers import below_top_edge, subpixel_peak
+        from ..trackers import below_top_edge, local_peak, subpixel_peak
 
         self.last = {"score": 0.0, "level": float("nan"), "peak_rc": None,
                      "shaft_seen": False}
@@ -351,10 +351,13 @@ class CrossSectionDetector:
         radius_rows = self.radius_mm / float(grid.spacing_mm[0])
         if not self.learned:  # Carriere's tracker: one radius below the echo's upper edge
             rc = below_top_edge(F, rc, float(F.mean()), radius_rows)
-        elif self.target_reference == "wall":
-            # the map marks the wall facing the probe: the centre lies a radius deeper (+z;
-            # the needle crosses the slice nearly at right angles)
-            rc = rc + np.array([radius_rows, 0.0])
+        else:
+            # the map's own mode within a radius of the smoothed map's peak
+            rc = local_peak(F, idx, np.ceil(self.radius_mm / np.asarray(grid.spacing_mm)))
+            if self.target_reference == "wall":
+                # the map marks the wall facing the probe: the centre lies a radius deeper
+                # (+z; the needle crosses the slice nearly at right angles)
+                rc = rc + np.array([radius_rows, 0.0])
         return True, grid.index_to_points(rc), score
 
 

@@ -3,7 +3,7 @@
 
 from ._axial import AxialParams, AxialTracker
 from ._base import NeedleEstimate, Status, Tracker, frames_from_sequence
-from ._cross_section import below_top_edge, subpixel_peak
+from ._cross_section import below_top_edge, local_peak, subpixel_peak
 from ._details import (
     AxialDetails,
     AxialModel,
@@ -28,6 +28,7 @@ from .volume import VolumeTracker, VolumeTrackerParams
 __all__ = ["AxialDetails", "AxialModel", "AxialParams", "AxialTracker", "below_top_edge",
            "DEFAULT_FEATURES", "DEFAULT_METHODS", "EstimateDetails", "frames_from_sequence",
            "InplaneDetails", "InplaneParams", "InplaneTracker", "LineDetails", "LineTrackerParams",
+           "local_peak",
            "make_tracker", "NeedleEstimate", "Status", "subpixel_peak", "Tracker", "tracker_class",
            "tracker_methods", "tracker_params", "TRACKERS", "VolumeDetails", "VolumeTracker",
            "VolumeTrackerParams"]

@@ -116,6 +116,7 @@ from ._cross_section import (
     bilinear,
     compact_spots,
     is_compact,
+    local_peak,
     peak_covariance,
     subpixel_peak,
 )
@@ -559,13 +560,17 @@ class AxialTracker(Tracker):
                 score < p.detect_ratio * max(float(z[spots[1]]), 0.0):
             return None, score, (f"no cross-section: the best spot (score {score:.1f}) does "
                                  f"not stand out of the next ({float(z[spots[1]]):.1f})")
-        center = np.asarray(idx, dtype=float) + subpixel_peak(S, idx)
         if self._anchor() == "top_edge":
-            center = below_top_edge(F, center, float(F.mean()),
-                                     p.needle_radius_mm / float(spacing[0]))
+            center = below_top_edge(F, np.asarray(idx, dtype=float) + subpixel_peak(S, idx),
+                                     float(F.mean()), p.needle_radius_mm / float(spacing[0]))
         else:
-            # a learned map of the wall facing the probe: the centre lies a radius deeper
-            # (the beam is +z; the needle crosses the slice nearly at right angles)
+            # a learned map's own mode near the spot (its likelihood is drawn at the needle's
+            # scale already); a learned map of the wall facing the probe: the centre lies a
+            # radius deeper (the beam is +z; the needle crosses the slice nearly at right
+            # angles)
+            center = (local_peak(F, idx, np.ceil(p.needle_radius_mm / spacing))
+                      if self._is_learned() else np.asarray(idx, dtype=float)
+                      + subpixel_peak(S, idx))
             center = center + self._wall_offset_rc(spacing)
         return center, score, ""
 

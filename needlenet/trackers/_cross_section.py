@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["below_top_edge", "bilinear", "compact_spots", "is_compact", "odd_px",
+__all__ = ["below_top_edge", "bilinear", "compact_spots", "is_compact", "local_peak", "odd_px",
            "peak_covariance", "subpixel_peak"]
 
 MAX_SPOTS = 64  # the strongest local maxima a slice is searched for spots
@@ -43,6 +43,22 @@ def subpixel_peak(S: np.ndarray, idx: tuple[int, int]) -> np.ndarray:
             if den < 0:
                 out[ax] = float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
     return out
+
+
+def local_peak(F: np.ndarray, idx: tuple[int, int], half_px) -> np.ndarray:
+    """The sub-pixel maximum (row, col) of ``F`` within ``half_px`` (rows, cols) of ``idx``.
+
+    A learned map is a likelihood of where the wall lies, drawn at the needle's scale; its
+    mode is the estimate. The map smoothed again at the needle's radius (which finds the spot
+    and scores it) has its maximum pulled towards whatever the map marks beside the wall: the
+    comet tail below it."""
+    h = np.maximum(np.asarray(half_px, dtype=int), 1)
+    lo = np.maximum(np.asarray(idx) - h, 0)
+    hi = np.minimum(np.asarray(idx) + h + 1, F.shape)
+    win = F[lo[0]:hi[0], lo[1]:hi[1]]
+    j = np.unravel_index(int(np.argmax(win)), win.shape)
+    peak = (int(lo[0] + j[0]), int(lo[1] + j[1]))
+    return np.asarray(peak, dtype=float) + subpixel_peak(F, peak)
 
 
 def below_top_edge(F: np.ndarray, center: np.ndarray, background: float,

@@ -23,7 +23,7 @@ from needlenet.servo import (
 )
 from needlenet.servo._api import check_options
 from needlenet.servo._images import ServoWorld
-from needlenet.trackers._cross_section import below_top_edge
+from needlenet.trackers._cross_section import below_top_edge, local_peak, subpixel_peak
 from needlenet.trackers.volume import VolumeTracker
 
 
@@ -146,6 +146,24 @@ def test_below_top_edge_on_a_flat_column_returns_the_centre():
     G[8:12, 4:7] = 1.0  # an echo with its upper edge between rows 7 and 8
     out = below_top_edge(G, np.array([10.0, 5.0]), 0.0, 2.0)
     assert out[0] == pytest.approx(7.5 + 2.0)
+
+
+def test_local_peak_is_the_map_mode_not_the_smoothed_peak():
+    """A wall-like Gaussian spot (sigma 2 px, at row 20.3, col 15.6) with a comet tail
+    under it: the map's own sub-pixel mode lies within 0.05 px of the spot's centre; the
+    peak of the map smoothed again at the spot's scale is pulled down the tail."""
+    import cv2
+
+    rr, cc = np.mgrid[0:48, 0:32].astype(float)
+    F = np.exp(-((rr - 20.3) ** 2 + (cc - 15.6) ** 2) / (2 * 2.0**2))
+    tail = (rr > 20.3) & (rr < 34) & (np.abs(cc - 15.6) < 2.0)
+    F = np.maximum(F, 0.5 * tail * np.exp(-(rr - 20.3) / 10.0)).astype(np.float32)
+    S = cv2.GaussianBlur(F, (0, 0), 2.0)
+    idx = np.unravel_index(int(np.argmax(S)), S.shape)
+    smoothed = np.asarray(idx, float) + subpixel_peak(S, idx)
+    mode = local_peak(F, idx, (3, 3))
+    assert mode == pytest.approx([20.3, 15.6], abs=0.05)
+    assert smoothed[0] - 20.3 > 0.15
 
 
 def test_scanner_field_cache_size_and_robust_keys():
