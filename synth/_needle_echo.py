@@ -26,12 +26,16 @@ class NeedleEcho:
     region: tuple[slice, ...]
 
 
-def needle_iq(scanner, pts: np.ndarray, tan: np.ndarray, step_mm: float) -> NeedleEcho | None:
+def needle_iq(scanner, pts: np.ndarray, tan: np.ndarray, step_mm: float,
+              spec=None) -> NeedleEcho | None:
     """Normalised needle IQ and the tissue's shadow multiplier, in a crop of the beam grid.
 
-    ``pts`` and ``tan`` are centreline samples and unit tangents in the probe frame.
+    ``pts`` and ``tan`` are centreline samples and unit tangents in the probe frame; ``spec``
+    the echo's :class:`~._world.NeedleSpec` (default: the world's needle; a
+    :class:`~._world.SpecularLine`'s for a specular boundary).
     """
-    probe, p, spec = scanner.probe, scanner.params, scanner.world.needle
+    probe, p = scanner.probe, scanner.params
+    spec = scanner.world.needle if spec is None else spec
     shape = scanner._shape
     if len(pts) == 0:
         return None

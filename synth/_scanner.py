@@ -454,11 +454,13 @@ class Scanner:
         echo = None
         if not self.zhao_mode and len(needle_pts):
             echo = self.needle_iq(needle_pts, needle_tan, step_mm)
-        env = self.envelope(iq, echo, rng, needle_gain)
+        others = self.reflector_echoes(tissue_to_probe, step_mm)
+        env = self.envelope(iq, echo, rng, needle_gain, others)
         if self.params.compound_looks > 1:
             inten = env * env
             for k in range(1, self.params.compound_looks):
-                e = self.envelope(self.look_iq(tissue_to_probe, k), echo, rng, needle_gain)
+                e = self.envelope(self.look_iq(tissue_to_probe, k), echo, rng, needle_gain,
+                                  others)
                 inten += e * e
             env = np.sqrt(inten / np.float32(self.params.compound_looks))
         img = self.probe.to_image(log_compress(env, self.params))
@@ -466,13 +468,30 @@ class Scanner:
             img[~self._mask] = 0
         return RenderedFrame(image=img, envelope=env, needle_gain=needle_gain)
 
+    def reflector_echoes(self, tissue_to_probe: np.ndarray, step_mm: float) -> list:
+        """The echoes of the world's specular boundaries (:class:`~._world.SpecularLine`)
+        seen from ``tissue_to_probe``; none in Zhao's mode (its volumes draw no echoes)."""
+        out = []
+        if self.zhao_mode:
+            return out
+        R = np.asarray(tissue_to_probe, float)[:3, :3]
+        for line in self.world.reflectors:
+            pts, tan = line.samples(step_mm)
+            e = _needle_iq(self, apply_transform(tissue_to_probe, pts), tan @ R.T, step_mm,
+                           spec=line.spec)
+            if e is not None:
+                out.append(e)
+        return out
+
     @property
     def display_mask(self) -> np.ndarray | None:
         """The frame's display mask (see :func:`display_mask`), or None."""
         return self._mask
 
-    def envelope(self, iq, echo: NeedleEcho | None, rng, needle_gain: float = 1.0) -> np.ndarray:
-        """|tissue * shadow + gain * needle + noise| with the noise scaled by TGC per row."""
+    def envelope(self, iq, echo: NeedleEcho | None, rng, needle_gain: float = 1.0,
+                 others: list | None = None) -> np.ndarray:
+        """|tissue * shadow + gain * needle + other reflectors + noise| with the noise scaled
+        by TGC per row."""
         noise = np.empty(iq.shape, np.float32)
         # OpenCV's generator is 3x faster than numpy's here; it is seeded from ``rng`` for
         # every frame, so the noise is reproducible from the scenario's seed.
@@ -483,6 +502,8 @@ class Scanner:
         if self._face_reverb is not None:
             rows, band = self._face_reverb
             noise[:rows] += band
+        for e in others or ():  # specular boundaries: their gain is their own
+            noise[e.region][:len(e.iq)] += e.iq
         if echo is not None:
             sl = echo.region
             noise[sl] += iq[sl] * (echo.shadow[..., None] - np.float32(1.0))

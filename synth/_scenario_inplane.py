@@ -3,6 +3,7 @@ from either side, through the skin or the side of the view."""
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,12 +20,15 @@ from ._scenario_base import (
     interface_along,
     random_scattering_map,
 )
-from ._world import NeedlePath, ScatteringMap, Tissue, World
+from ._world import NeedlePath, ScatteringMap, SpecularLine, Tissue, World
 
 __all__ = ["ENTRY_EDGES", "SIDES", "InplaneScenario"]
 
 
 SIDES = ("right", "left")
+# a boundary's specular echo is drawn as a thin shaft's wall (its diffuse share then spans
+# 0.5 mm across the boundary)
+_INTERFACE_GAUGE = 25
 ENTRY_EDGES = ("top", "side")
 
 
@@ -62,6 +66,12 @@ class InplaneScenario(_Base):
     interface_offset_mm: float | None = None
     interface_brightness: float = 3.0  # amplitude gain at the boundary
     interface_factor: float = 1.0  # echogenicity beyond it (deeper side)
+    # the boundary's specular echo where it crosses the image plane (needle_echo's units; the
+    # needle's specular lobe and diffuse floor, no reverberation, no tip): a smooth boundary
+    # reflects as the needle's wall does. 0: a diffuse boundary only
+    interface_echo: float = 0.0
+    interface_roughness: float = 0.0  # share of that echo scattered diffusely (a rough boundary)
+    interface_tilt_deg: float = 0.0  # the boundary's angle to the needle in the image plane
     vessels: int = 0  # anechoic tubes, radius 1-4 mm, drawn across or along the image plane
     shadows: int = 0  # occluders (a bright segment) casting an acoustic shadow to the bottom
     needle_free: bool = False  # a world with no needle: every frame without one
@@ -85,6 +95,14 @@ class InplaneScenario(_Base):
             raise ValueError(f"angle_deg must be in (0, 90), got {self.angle_deg}")
         if self.vessels < 0 or self.shadows < 0:
             raise ValueError("vessels and shadows must be counts >= 0")
+        if not (np.isfinite(self.interface_echo) and self.interface_echo >= 0):
+            raise ValueError(f"interface_echo must be >= 0, got {self.interface_echo}")
+        if not 0.0 <= self.interface_roughness <= 1.0:
+            raise ValueError(f"interface_roughness must be in [0, 1], got "
+                             f"{self.interface_roughness}")
+        if not abs(self.interface_tilt_deg) < 90.0:
+            raise ValueError(f"interface_tilt_deg must be in (-90, 90), got "
+                             f"{self.interface_tilt_deg}")
 
     def draw(self, rng: np.random.Generator) -> dict:
         d = {
@@ -150,7 +168,9 @@ class InplaneScenario(_Base):
                           z_entry])
         path = NeedlePath(entry=entry, direction=direction)
         smap = self._structures(smap, d, entry, direction)
-        world = World(Tissue(dens, d["tissue_seed"], smap), path, p.needle_spec(None))
+        needle = p.needle_spec(None)
+        world = World(Tissue(dens, d["tissue_seed"], smap), path, needle,
+                      reflectors=self._reflectors(needle, entry, direction))
         dt = 1.0 / p.frame_rate_hz
         default_T = int(np.ceil((p.stop_length_mm - p.start_length_mm) / d["speed_mm_s"]
                                 * p.frame_rate_hz)) + 1
@@ -163,14 +183,43 @@ class InplaneScenario(_Base):
         traj = Trajectory(t, ins, _const_pose(T), tissue)
         return Scanner(probe, imaging, world), traj
 
+    def _reflectors(self, needle, entry, direction) -> tuple[SpecularLine, ...]:
+        """The interface's specular line in the image plane (``interface_echo`` > 0): where
+        the plane of :func:`interface_along` crosses y = 0, across the whole view, its wall
+        (a radius above the line samples) on the boundary."""
+        p = self
+        if p.interface_offset_mm is None or p.interface_echo <= 0:
+            return ()
+        u = self._interface_axis(direction)
+        n = np.array([-u[2], 0.0, u[0]])  # the plane's normal in the image plane, deeper
+        n = n if n[2] >= 0 else -n
+        spec = dataclasses.replace(needle, gauge=_INTERFACE_GAUGE, echo=float(p.interface_echo),
+                                   reverb_count=0, tip_gain=0.0, shadow_factor=1.0,
+                                   diffuse_fraction=float(p.interface_roughness),
+                                   streak_db=None)
+        c = np.array([entry[0], 0.0, entry[2]]) + (p.interface_offset_mm
+                                                   + spec.radius_mm) * n
+        half = 3.0 * max(p.width_mm, p.depth_mm)
+        return (SpecularLine(c - half * u, c + half * u, spec),)
+
+    def _interface_axis(self, direction) -> np.ndarray:
+        """The interface's direction in the image plane: the needle's, turned by
+        ``interface_tilt_deg`` about the elevation axis."""
+        u = np.array([direction[0], 0.0, direction[2]])
+        u /= np.linalg.norm(u)
+        t = np.deg2rad(self.interface_tilt_deg)
+        return np.array([u[0] * np.cos(t) - u[2] * np.sin(t), 0.0,
+                         u[0] * np.sin(t) + u[2] * np.cos(t)])
+
     def _structures(self, smap: ScatteringMap, d: dict, entry, direction) -> ScatteringMap:
         """The drawn interface, vessels and shadows added to the scattering map (tissue
         frame = probe frame at the start: x lateral, y elevation, z depth)."""
         p = self
         extra: dict = {}
         if p.interface_offset_mm is not None:
-            # the plane holding the needle's in-plane direction and the elevation axis
-            u = np.array([direction[0], 0.0, direction[2]])
+            # the plane holding the needle's in-plane direction (turned by the tilt) and the
+            # elevation axis
+            u = self._interface_axis(direction)
             extra.update(interface_along(entry, u, [0.0, 1.0, 0.0], p.interface_offset_mm,
                                          p.interface_brightness, p.interface_factor))
         vs = d.get("vessels", [])

@@ -27,6 +27,7 @@ __all__ = [
     "Tissue",
     "NeedleSpec",
     "NeedlePath",
+    "SpecularLine",
     "World",
     "needle_radius_mm",
 ]
@@ -302,6 +303,28 @@ class NeedlePath:
         return self.point_at(s), self.tangent_at(s), s
 
 
+@dataclass(frozen=True)
+class SpecularLine:
+    """A specular reflector in the tissue other than the needle: the line from ``a`` to ``b``
+    (tissue frame, mm) where a smooth boundary (fascia, a tendon's or an organ's surface)
+    crosses the image plane. Its echo follows the needle's physics (:class:`NeedleSpec`
+    ``spec``: the specular lobe, the diffuse floor), without the needle's tip; a single
+    boundary does not ring as a hollow shaft does unless ``spec`` says so."""
+
+    a: np.ndarray
+    b: np.ndarray
+    spec: NeedleSpec
+
+    def samples(self, step_mm: float) -> tuple[np.ndarray, np.ndarray]:
+        """Points every ``step_mm`` from ``a`` to ``b`` and their (equal) unit tangents."""
+        a, b = np.asarray(self.a, float), np.asarray(self.b, float)
+        length = float(np.linalg.norm(b - a))
+        n = max(int(np.ceil(length / step_mm)), 1) + 1
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        u = (b - a) / max(length, 1e-12)
+        return a + t * (b - a), np.repeat(u[None], n, 0)
+
+
 @dataclass
 class World:
     """Tissue, needle and their rigid motions over time.
@@ -316,6 +339,7 @@ class World:
     needle_path: NeedlePath | None
     needle: NeedleSpec = field(default_factory=NeedleSpec)
     needle_in_tissue: bool = True
+    reflectors: tuple[SpecularLine, ...] = ()  # specular boundaries in the tissue
 
     def needle_to_world(self, tissue_pose: np.ndarray) -> np.ndarray:
         return tissue_pose if self.needle_in_tissue else np.eye(4)

@@ -110,6 +110,42 @@ def test_axial_interface_is_a_line_across_every_slice():
         synth.generate("axial", seed=5, **{**kw, "interface_tilt_deg": 85.0})
 
 
+def test_inplane_interface_echo_is_a_specular_line_at_its_offset_and_tilt():
+    """An interface 3 mm under a 30-degree needle, turned 10 degrees, with a specular echo:
+    a bright line on that boundary 15-30 mm along from the entry (past the needle's tip), as
+    the diffuse boundary alone is not; 1 mm either side and along the untilted line, only
+    speckle. Bad values are refused by name."""
+    kw = dict(frames=2, width_mm=30.0, depth_mm=30.0, angle_deg=30.0,
+              background="homogeneous", interface_offset_mm=3.0, interface_brightness=1.0,
+              interface_tilt_deg=10.0, start_length_mm=8.0)
+    reads = {}
+    for echo in (0.0, 40.0):
+        s = synth.generate("inplane", seed=4, interface_echo=echo, **kw)
+        g, img = s.grid(), s.images[-1]
+        med = float(np.median(img))
+        entry = s.centerline_mm[0][0][[0, 2]]
+        u0 = np.asarray(s.direction[0], float)
+        u0 /= np.linalg.norm(u0)
+        t = np.deg2rad(10.0)
+        u = np.array([u0[0] * np.cos(t) - u0[1] * np.sin(t),
+                      u0[0] * np.sin(t) + u0[1] * np.cos(t)])
+
+        def line(direction, offset, a0=15.0, a1=30.0, entry=entry):
+            n = np.array([-direction[1], direction[0]])
+            n = n if n[1] >= 0 else -n
+            return _segment(entry + offset * n, direction, a0, a1)
+
+        reads[echo] = [_mean_near(img, g, line(u, off), 0.15) / med for off in (3.0, 2.0, 4.0)]
+        reads[echo].append(_mean_near(img, g, line(u0, 3.0, 25.0, 30.0), 0.15) / med)
+    on, below, above, untilted = reads[40.0]
+    assert on > 1.8 and on > 1.4 * reads[0.0][0]
+    assert max(below, above, untilted) < 1.15
+    for bad in (dict(interface_echo=-1.0), dict(interface_roughness=1.5),
+                dict(interface_tilt_deg=90.0)):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            synth.generate("inplane", seed=4, **{**kw, **bad})
+
+
 def test_volume_interface_is_a_bright_plane_along_the_needle():
     """A bright interface holding the needle's axis, rolled 10 degrees about it and moved 3 mm
     along its normal: the volume is bright on that plane beside the needle, not 3 mm off it."""
