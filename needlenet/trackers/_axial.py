@@ -538,9 +538,9 @@ class AxialTracker(Tracker):
         (less ``mask_edge_mm``), when it stands out of the map (``detect_score``) and, on a
         classical map, of the slice's other compact spots (``detect_ratio``; see
         :func:`compact_spots`; a learned probability has an absolute level, ``min_peak``,
-        and marks an interface in spots as bright as a faint needle's); moved to one
-        radius below the echo's upper edge for classical features. Returns (centre or None,
-        its robust score, why there is none)."""
+        and marks an interface in spots as bright as a faint needle's); placed one radius
+        below the echo's upper edge (classical) or at the map's own maximum near the spot
+        (learned). Returns (centre or None, its robust score, why there is none)."""
         p = self.params
         F, S = maps.F, maps.S
         inner = inner_region(frame, p.mask_edge_mm)
@@ -560,19 +560,14 @@ class AxialTracker(Tracker):
                 score < p.detect_ratio * max(float(z[spots[1]]), 0.0):
             return None, score, (f"no cross-section: the best spot (score {score:.1f}) does "
                                  f"not stand out of the next ({float(z[spots[1]]):.1f})")
+        center = np.asarray(idx, dtype=float) + subpixel_peak(S, idx)
         if self._anchor() == "top_edge":
-            center = below_top_edge(F, np.asarray(idx, dtype=float) + subpixel_peak(S, idx),
-                                     float(F.mean()), p.needle_radius_mm / float(spacing[0]))
-        else:
-            # a learned map's own mode near the spot (its likelihood is drawn at the needle's
-            # scale already); a learned map of the wall facing the probe: the centre lies a
-            # radius deeper (the beam is +z; the needle crosses the slice nearly at right
-            # angles)
-            center = (local_peak(F, idx, np.ceil(p.needle_radius_mm / spacing))
-                      if self._is_learned() else np.asarray(idx, dtype=float)
-                      + subpixel_peak(S, idx))
-            center = center + self._wall_offset_rc(spacing)
-        return center, score, ""
+            return below_top_edge(F, center, float(F.mean()),
+                                  p.needle_radius_mm / float(spacing[0])), score, ""
+        if self._is_learned():  # its own mode: the map is drawn at the needle's scale already
+            center = local_peak(F, idx, np.ceil(p.needle_radius_mm / spacing))
+        # a map of the wall facing the probe: the centre lies a radius deeper (+z)
+        return center + self._wall_offset_rc(spacing), score, ""
 
     def _model(self, depth: float, from_f0: np.ndarray) -> tuple[AxialModel, np.ndarray | None]:
         """The model after this frame's update (parameters, whole shape), and the needle's
