@@ -451,6 +451,22 @@ def test_roi_rk_starts_only_on_a_needle_the_map_believes_in(floor, starts):
         assert est.tip_mm is None and "median likelihood" in est.reason
 
 
+@pytest.mark.parametrize("margin, starts", [(1.5, False), (0.0, True)])
+def test_roi_rk_starts_only_on_a_line_that_ends_inside_the_volume(margin, starts):
+    # a line of likelihood from face to face (21 mm of a 30 mm tube inside the volume), as an
+    # interface's sheet crossed along the sweep gives: what a fit calls its tip is the far face
+    grid, image, entry, tip, _ = _learned_case(30.0)
+    tracker = VolumeTracker("roi-rk", features=_TubeLikelihood(entry, tip), rng=0,
+                            params=VolumeTrackerParams(init_tip_margin_mm=margin))
+    est = tracker.update(Frame(image, grid, t=0.0))
+    assert (est.status == Status.TRACKING) == starts
+    if starts:  # the tip it would track lies on a face (both ends of what it sees do)
+        assert min(abs(est.tip_mm[0] + 9.0), abs(est.tip_mm[0] - 10.6)) < 1.0
+        assert np.linalg.norm(est.tip_mm - tip) > 5.0
+    else:
+        assert est.tip_mm is None and "runs out of the volume" in est.reason
+
+
 @pytest.mark.parametrize("floor, starts", [(1.8, False), (0.0, True)])
 def test_roi_rk_classical_starts_only_on_a_line_brighter_than_tissue(floor, starts):
     # a 1 mm tube at grey 60 from the volume's face over noise of mean 35: a line the

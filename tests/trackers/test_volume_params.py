@@ -31,7 +31,7 @@ from synth import Grid
 FLAT_NAMES = (
     "threshold_percentile intensity_threshold percentile_stride inlier_radius_mm "
     "min_sample_distance_mm max_trials init_max_trials init_attempts init_min_likelihood "
-    "init_min_contrast entry_margin_mm "
+    "init_min_contrast init_tip_margin_mm entry_margin_mm "
     "success_probability batch_size refine_iterations min_inliers min_length_mm max_gap_mm "
     "profile_radius_mm tip_cap_mm likelihood_threshold likelihood_floor likelihood_relative "
     "max_candidates tip_window_mm tip_min init_select init_select_ratio image_refine "
@@ -58,7 +58,7 @@ def _text(value) -> str:
 
 
 def test_every_old_name_belongs_to_one_group_and_still_sets_and_reads_its_field():
-    assert len(FLAT_NAMES) == 69
+    assert len(FLAT_NAMES) == 70
     owners = {f.name: g for g, cls in GROUPS.items() for f in fields(cls)}
     assert sorted([*owners, "default_dt_s"]) == sorted(FLAT_NAMES)
     assert [f.name for f in fields(VolumeTrackerParams)] == [*GROUPS, "default_dt_s"]

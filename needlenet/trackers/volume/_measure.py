@@ -172,6 +172,20 @@ def implausible_start(vol: Volume, m: Measurement, p: VolumeTrackerParams,
     return None
 
 
+def runs_out(vol: Volume, m: Measurement, margin_mm: float) -> str | None:
+    """Why a found needle shows no tip in the volume, or None: its tip lies closer than
+    ``margin_mm`` to the sector's boundary along the needle, so its line runs on out of the
+    volume (a needle past the far face, or a tissue interface's sheet crossed from face to
+    face). 0 turns the test off."""
+    if margin_mm <= 0:
+        return None
+    gap = run_out_distance(vol, m.tip, m.direction, margin_mm)
+    if gap < margin_mm:
+        return (f"no needle tip in view: the line runs out of the volume, its tip {gap:.1f} mm "
+                f"from the sector's boundary (< {margin_mm} mm)")
+    return None
+
+
 def _between(a: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return (a >= lo) & (a <= hi)
 

@@ -24,8 +24,8 @@ from ...backends import InsertionDetector, InsertionParams, chatelain_control_po
 from ...features import Frame
 from .._base import NeedleEstimate, Status
 from ._base import StateFilter, VolumeTracker
-from ._geometry import Volume, ball, boundary_distance, cylinder, run_out_distance, voxel_count
-from ._measure import Measurement, fail, implausible_start, measure, threshold
+from ._geometry import Volume, ball, boundary_distance, cylinder, voxel_count
+from ._measure import Measurement, fail, implausible_start, measure, runs_out, threshold
 
 __all__ = ["ChatelainTracker", "ControlPoints"]
 
@@ -242,12 +242,8 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
         if m.entry_gap_mm > mp.entry_margin_mm:
             return fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
                         f"mm inside the sector", m.trials, m.roi_voxels, m.inliers)
-        tip_gap = run_out_distance(vol, m.tip, m.direction, c.start_tip_margin_mm)
-        if tip_gap < c.start_tip_margin_mm:
-            return fail(f"the needle runs out of the volume: its tip is {tip_gap:.1f} mm from "
-                        f"the sector's boundary (< {c.start_tip_margin_mm} mm)", m.trials,
-                        m.roi_voxels, m.inliers)
-        why = implausible_start(vol, m, p, c.start_min_likelihood, c.start_min_contrast)
+        why = runs_out(vol, m, c.start_tip_margin_mm) or \
+            implausible_start(vol, m, p, c.start_min_likelihood, c.start_min_contrast)
         if why is not None:
             return fail(why, m.trials, m.roi_voxels, m.inliers)
         if c.n_control_points == 3:

@@ -253,6 +253,11 @@ class RoiRkParams:
     init_min_contrast : float
         Classical features: a found axis whose image is not this many times as bright as the
         tissue 2-3 mm around it is set aside (0: no test); Chatelain's tracker's figure.
+    init_tip_margin_mm : float
+        A found axis whose tip lies closer than this to the sector's boundary along the needle
+        is set aside (0: no test): Zhao tracks a tip inside the volume, and a line that runs on
+        out of it (a tissue interface's sheet crossed from face to face) shows none. Chatelain's
+        tracker's figure, 1.5 mm: beyond the tip cap and a voxel.
     roi_radius_mm : float
         R_ROI of eq. (1) (not given): five needle radii, Zhao's contrast cylinder (eq. (9)),
         wide for the initial axis error and a moving tip, narrow for an inlier ratio > 0.4.
@@ -286,6 +291,7 @@ class RoiRkParams:
     init_select_ratio: float = 1.2
     init_min_likelihood: float = 0.25
     init_min_contrast: float = 1.8
+    init_tip_margin_mm: float = 1.5
     roi_radius_mm: float = 2.5
     max_axis_jump_deg: float = 15.0
     max_axis_shift_mm: float = 2.5
@@ -306,7 +312,7 @@ class RoiRkParams:
                                "r_position", "r_velocity", "p0_angle_rate", "p0_velocity",
                                "init_select_ratio"))
         _check_non_negative(self, ("speckle_search_mm", "init_min_likelihood",
-                                   "init_min_contrast"))
+                                   "init_min_contrast", "init_tip_margin_mm"))
         _check_integers(self, (("init_attempts", 1),))
         if self.init_select not in ("support", "likelihood"):
             raise ValueError(f"init_select must be 'support' or 'likelihood', "

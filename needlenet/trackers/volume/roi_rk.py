@@ -37,6 +37,7 @@ from ._measure import (
     implausible_start,
     measure,
     median_profile,
+    runs_out,
     threshold,
 )
 
@@ -139,9 +140,10 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
 
         The hypothesis must look like a needle inserted from outside (Zhao App. B: "the
         needle is inserted from the outside"): bright along its axis, at least
-        ``min_length_mm`` long, starting within ``entry_margin_mm`` of the sector's boundary.
-        A hypothesis that is not (a tubular structure of the tissue) is set aside with its
-        inliers and RANSAC runs again, up to ``init_attempts`` times (sequential RANSAC).
+        ``min_length_mm`` long, starting within ``entry_margin_mm`` of the sector's boundary
+        and ending with a tip inside the volume (``init_tip_margin_mm``). A hypothesis that
+        is not (a tubular structure of the tissue) is set aside with its inliers and RANSAC
+        runs again, up to ``init_attempts`` times (sequential RANSAC).
         """
         p = self.params
         mp, r = p.measurement, p.roi_rk
@@ -192,8 +194,9 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
             if m.ok and m.entry_gap_mm > mp.entry_margin_mm:
                 m = fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
                          f"mm inside the sector", m.trials, m.roi_voxels, m.inliers)
-            why = None if not m.ok else implausible_start(vol, m, p, r.init_min_likelihood,
-                                                          r.init_min_contrast)
+            why = None if not m.ok else (
+                runs_out(vol, m, r.init_tip_margin_mm)
+                or implausible_start(vol, m, p, r.init_min_likelihood, r.init_min_contrast))
             if why is not None:
                 m = fail(why, m.trials, m.roi_voxels, m.inliers)
             if m.ok and not choose:
