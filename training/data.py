@@ -40,6 +40,7 @@ from needlenet.features import (
 )
 
 from .networks import INPUT_MULTIPLE, OUTPUT_STRIDE
+from .postprocess import draw_postprocessing, postprocessed
 from .worlds import randomize, randomize_axial, randomize_inplane
 
 __all__ = ["DataConfig", "randomize", "randomize_inplane", "randomize_axial", "make_targets",
@@ -83,6 +84,9 @@ class DataConfig:
     # in-plane only: held-out worlds over which the median speckle size, recorded in the
     # model's metadata, is measured (training/speckle.py)
     speckle_worlds: int = 200
+    # in-plane only: the share of worlds whose frames pass through a scanner's post-processing
+    # (speckle reduction, edge enhancement, JPEG; training/postprocess.py), one chain per world
+    postprocess_fraction: float = 0.0
 
     def __post_init__(self):
         if self.inplane_worlds not in INPLANE_WORLDS:
@@ -101,6 +105,9 @@ class DataConfig:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.num_workers < 0:
             raise ValueError(f"num_workers must be 0 or more, got {self.num_workers}")
+        if not 0.0 <= self.postprocess_fraction <= 1.0:
+            raise ValueError(f"postprocess_fraction must be in [0, 1], got "
+                             f"{self.postprocess_fraction}")
         if not 0.0 <= self.zhao_fraction <= 1.0:
             raise ValueError(f"zhao_fraction must be in [0, 1], got {self.zhao_fraction}")
         lo, hi = (float(v) for v in self.cr_range)
@@ -370,6 +377,10 @@ class SynthStream(IterableDataset):
                 seq = synth.generate(name, seed=seed, frames=self.cfg.frames_per_world, **kw)
             except ValueError:
                 continue  # a rare impossible draw (e.g. a needle that cannot fit): skip it
+            if self.cfg.postprocess_fraction > 0 and self.cfg.modality == "inplane" and \
+                    rng.random() < self.cfg.postprocess_fraction:
+                seq.images = postprocessed(seq.images, seq.spacing_mm,
+                                           draw_postprocessing(rng))
             for i in rng.permutation(seq.n_frames):
                 prepared = prepare_frame(seq, int(i), self.cfg)
                 for _ in range(self.cfg.crops_per_frame):
