@@ -81,6 +81,9 @@ class DataConfig:
     # right at 15-70 degrees, no display masks, tip targets at the labelled tip: the worlds the
     # shipped in-plane model was trained on)
     inplane_worlds: str = "wide"
+    # in-plane narrow worlds only: the share of them with a tissue boundary's specular echo
+    # beside the needle (a needle-like line that is no needle; worlds.boundary_beside)
+    inplane_boundaries: float = 0.0
     # in-plane only: held-out worlds over which the median speckle size, recorded in the
     # model's metadata, is measured (training/speckle.py)
     speckle_worlds: int = 200
@@ -105,6 +108,9 @@ class DataConfig:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.num_workers < 0:
             raise ValueError(f"num_workers must be 0 or more, got {self.num_workers}")
+        if not 0.0 <= self.inplane_boundaries <= 1.0:
+            raise ValueError(f"inplane_boundaries must be in [0, 1], got "
+                             f"{self.inplane_boundaries}")
         if not 0.0 <= self.postprocess_fraction <= 1.0:
             raise ValueError(f"postprocess_fraction must be in [0, 1], got "
                              f"{self.postprocess_fraction}")

@@ -48,6 +48,9 @@ class TrainConfig:
     devices: int = 1
     num_nodes: int = 1
     verbose: bool = True
+    # a checkpoint written by ``train`` whose network weights this run starts from (fine-tuning);
+    # its modality, spacing, normalisation and width must be this recipe's
+    init: str | None = None
     data: DataConfig = field(default_factory=DataConfig)
 
     def __post_init__(self):
@@ -144,6 +147,24 @@ def config_for(modality: str, **changes) -> TrainConfig:
     return replace(cfg, **changes)
 
 
+def _start_from(net, config: TrainConfig) -> None:
+    """Load ``config.init``'s network weights into ``net``; ValueError when that checkpoint
+    was trained for another modality, grid, normalisation or width."""
+    from .export import load_checkpoint
+
+    start, hp = load_checkpoint(config.init)
+    for key, want in (("modality", config.modality), ("spacing_mm", config.data.spacing_mm),
+                      ("normalization", config.data.normalization)):
+        if hp.get(key) != want:
+            raise ValueError(f"init {config.init}: a checkpoint with {key} {hp.get(key)!r}; "
+                             f"this recipe trains {want!r}")
+    try:
+        net.load_state_dict(start.state_dict())
+    except RuntimeError as exc:
+        raise ValueError(f"init {config.init}: its network is not this recipe's (width "
+                         f"{config.width or 'default'}): {str(exc).splitlines()[0]}") from None
+
+
 def train(config: TrainConfig) -> dict:
     """Train, checkpoint and return the final validation metrics (and the loss history)."""
     import lightning as L
@@ -154,6 +175,8 @@ def train(config: TrainConfig) -> dict:
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     net = build_network(config.modality, config.width)
+    if config.init is not None:
+        _start_from(net, config)
     speckle = speckle_reference(config.data, config.data.speckle_worlds) \
         if config.modality in SPECKLE_MODALITIES else None
     module = LikelihoodModule(net, config.modality, config.data.spacing_mm, lr=config.lr,

@@ -50,6 +50,10 @@ def add_train_parser(sub) -> None:
                    help="change one setting of the recipe: a field of training.train."
                         "TrainConfig or of its DataConfig, e.g. --param width=16 --param "
                         "crop=48 --param cr_range=1.5,3.0; repeatable")
+    p.add_argument("--init", metavar="CKPT",
+                   help="start from the network of a checkpoint written by 'needlenet train' "
+                        "(fine-tuning; the same model and width), e.g. the shipped in-plane "
+                        "model's base, training/checkpoints/inplane_base.ckpt")
     p.add_argument("--export", help="also export the result to this .onnx file")
     p.add_argument("--overwrite", action="store_true")
     p.set_defaults(func=run_train)
@@ -63,6 +67,8 @@ def run_train(args) -> int:
         if value is not None and value < 1:
             raise CLIError(f"train: {flag} must be at least 1, got {value}")
     export = check_output(args.export, ".onnx", args.overwrite, "--export")
+    if args.init is not None and not Path(args.init).is_file():
+        raise CLIError(f"train: --init {args.init}: no such checkpoint file")
     _require_training("train")
     from training.train import train
 
@@ -76,7 +82,12 @@ def run_train(args) -> int:
     out = Path(cfg.out_dir)
     if (out / "model.ckpt").exists() and not args.overwrite:
         raise CLIError(f"train: {out / 'model.ckpt'} exists; pass --overwrite or --out DIR")
-    metrics = train(cfg)
+    try:
+        metrics = train(cfg)
+    except ValueError as exc:
+        if cfg.init is None or not str(exc).startswith(("init ", "checkpoint ")):
+            raise
+        raise CLIError(f"train: --init: {exc}") from None
     if metrics.pop("global_rank", 0) != 0:
         return 0  # a DDP worker process: rank 0 reports and exports
     for k, v in metrics.items():
@@ -88,12 +99,22 @@ def run_train(args) -> int:
         r = export_onnx(net, hp["modality"], hp["spacing_mm"], export, overwrite=args.overwrite,
                         extra_metadata={"train_steps": cfg.steps, "train_seed": args.seed,
                                         **({"train_params": " ".join(args.param)}
-                                           if args.param else {})},
+                                           if args.param else {}),
+                                        **({"train_init": _describe(args.init)}
+                                           if args.init else {})},
                         target_reference=hp.get("target_reference", "centerline"),
                         normalization=hp.get("normalization", "fixed"),
                         speckle_cell_mm=hp.get("speckle_cell_mm"))
         print(f"wrote {export} ({r['bytes']} bytes, onnxruntime vs torch {r['max_abs_diff']:.1e})")
     return 0
+
+
+def _describe(path: str) -> str:
+    """A checkpoint as the model's metadata names it: file name and SHA-256 (first 16)."""
+    import hashlib
+
+    digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+    return f"{Path(path).name} sha256:{digest}"
 
 
 def _config(args):
@@ -107,14 +128,16 @@ def _config(args):
         changes["steps"] = args.steps
     if args.out:
         changes["out_dir"] = args.out
+    if args.init:
+        changes["init"] = str(args.init)
     try:
         settings = settings_for(args.model, args.param)
         own = sorted(set(settings) & {"seed", "num_workers", "accelerator", "steps", "out_dir",
-                                      "devices", "num_nodes"})
+                                      "devices", "num_nodes", "init"})
         if own:
             raise ValueError(f"set {', '.join(own)} with its own option (--seed, --workers, "
-                             "--accelerator, --steps, --out, --devices, --num-nodes), not "
-                             "--param")
+                             "--accelerator, --steps, --out, --devices, --num-nodes, --init), "
+                             "not --param")
         return config_for(args.model, **changes, **settings)
     except ValueError as exc:
         raise CLIError(f"train: --param: {exc}") from None
