@@ -7,16 +7,17 @@ import pytest
 import synth
 
 
-def _track(seed: int, start_length_mm: float, exits: int):
+def _track(seed: int, start_length_mm: float, exits: int, model: str | None = None):
     """A 40-frame synth insertion whose tip leaves the view on frame ``exits``, tracked with
-    learned features: (sequence, visible, tracking, estimates)."""
+    learned features (``model``, default the shipped one): (sequence, visible, tracking,
+    estimates)."""
     pytest.importorskip("onnxruntime")
     from needlenet.trackers import Status, make_tracker
 
     seq = synth.generate("inplane", seed=seed, frames=40, start_length_mm=start_length_mm)
     visible = np.asarray(seq.visible, bool)
     assert visible[:exits].all() and not visible[exits:].any()
-    est = make_tracker("inplane", "line", "learned", seed=0).run(seq)
+    est = make_tracker("inplane", "line", "learned", model, seed=0).run(seq)
     tracking = np.array([e.status == Status.TRACKING for e in est])
     return seq, visible, tracking, est
 
@@ -31,12 +32,14 @@ def test_needle_running_out_of_view_is_lost_and_no_tissue_line_is_taken_for_it()
     assert all(e.status.value == "lost" for e in est[31:])
 
 
-def test_needle_fading_on_the_map_before_the_edge_is_lost_once_its_tip_leaves():
+def test_needle_fading_on_the_map_before_the_edge_is_lost_once_its_tip_leaves(
+        base_inplane_model):
     # 14 G from the top right at 35 degrees. The shaft map's confident evidence ends 3 mm
     # before the left edge (the needle fades on the map at 26 mm depth) and its weaker
     # continuation runs on to the edge: the segment's end stood still there as a tip, 3-24 mm
     # behind the needle's, on every frame from 11 on.
-    seq, visible, tracking, est = _track(21, 40.0, 12)
+    # (the maps of the model the rule was built on, which showed it)
+    seq, visible, tracking, est = _track(21, 40.0, 12, base_inplane_model)
     assert tracking[:5].all()
     assert not tracking[~visible].any()
     err = [np.linalg.norm(e.tip_mm - t)

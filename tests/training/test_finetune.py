@@ -88,3 +88,21 @@ def test_cli_init_is_checked_before_training_and_named_in_the_metadata(tmp_path,
     meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
     assert meta["train_init"].startswith("inplane_base.ckpt sha256:")
     assert "inplane_boundaries=1.0" in meta["train_params"]
+
+
+def test_the_shipped_inplane_model_names_its_base_and_its_fine_tuning():
+    # the shipped in-plane model is the base checkpoint fine-tuned on narrow worlds with
+    # specular boundaries (README: the command)
+    import hashlib
+
+    import onnx
+
+    from needlenet.features import shipped_model_path
+
+    meta = {p.key: p.value for p in onnx.load(str(shipped_model_path("inplane"))).metadata_props}
+    digest = hashlib.sha256(BASE.read_bytes()).hexdigest()[:16]
+    assert meta["train_init"] == f"inplane_base.ckpt sha256:{digest}"
+    assert meta["train_params"] == "lr=1e-3 inplane_boundaries=0.5"
+    assert meta["train_seed"] == "100" and meta["train_steps"] == "900"
+    _, hp = load_checkpoint(BASE)
+    assert hp["max_steps"] == DEFAULTS["inplane"].steps  # the base is the recipe's stage one
