@@ -10,7 +10,9 @@ unprocessed frames only reads processed recordings as a texture it has never see
 for a recording): speckle reduction in 70% of the chains (bilateral, median, non-local means
 or a Gaussian, 0.2-0.8 mm), edge enhancement in 40% (unsharp masking), JPEG in 30% (quality
 30-90); :func:`postprocess` applies it to a frame at its own pixel spacing. Filter sizes are in
-millimetres, so a chain does to a fine and a coarse frame what it would do to the same tissue.
+millimetres, so a chain does to a fine and a coarse frame what it would do to the same tissue
+(non-local means keeps OpenCV's windows of 7 and 21 pixels, and a median at most 7 pixels, as
+scanners' filters have fixed kernels on their own grids).
 """
 
 from __future__ import annotations
