@@ -7,7 +7,9 @@ angle and no gauge given, with classical and with learned features. Per sequence
 - tip error (mm, Euclidean) over the needle frames the tracker reports ``tracking``: median
   and 95th percentile;
 - ``tracked_fraction``: needle frames reported ``tracking`` over needle frames;
-- ``false_tracking_fraction``: needle-free frames reported ``tracking`` over needle-free frames.
+- ``false_tracking_fraction``: needle-free frames reported ``tracking`` over needle-free frames;
+- ``wrong_fraction``: needle frames reported ``tracking`` with the tip more than 3 mm off, over
+  needle frames (a confident wrong answer, worse than none).
 
 A needle frame has the needle visible (label ``visible``: the tip in the image with at least
 3 mm of shaft in view); a needle-free frame has no needle in it at all (tip label NaN). The set
@@ -110,6 +112,7 @@ GOOD_MM = 3.0
 
 def _summary(err, n_needle, n_tracked, n_free, n_false) -> dict:
     n_good = int(np.count_nonzero(err <= GOOD_MM))
+    n_wrong = int(np.count_nonzero(err > GOOD_MM))
     score = None
     if n_needle or n_free:
         score = (n_good / n_needle if n_needle else 0.0) - (n_false / n_free if n_free else 0.0)
@@ -119,6 +122,7 @@ def _summary(err, n_needle, n_tracked, n_free, n_false) -> dict:
         "tip_error_p95_mm": float(np.percentile(err, 95)) if err.size else None,
         "tracked_fraction": n_tracked / n_needle if n_needle else None,
         "false_tracking_fraction": n_false / n_free if n_free else None,
+        "wrong_fraction": n_wrong / n_needle if n_needle else None, "wrong_frames": n_wrong,
         "needle_frames": n_needle, "tracked_frames": n_tracked,
         "needle_free_frames": n_free, "false_tracking_frames": n_false,
         "tip_errors_mm": err.tolist(),
@@ -191,7 +195,8 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
             rows.append(row)
             log(f"  external {name:28s} {kind:9s} median {_fmt(row['tip_error_median_mm'])} "
                 f"p95 {_fmt(row['tip_error_p95_mm'])} mm, tracked "
-                f"{_fmt(row['tracked_fraction'])}, false {_fmt(row['false_tracking_fraction'])}")
+                f"{_fmt(row['tracked_fraction'])}, false {_fmt(row['false_tracking_fraction'])}"
+                f", wrong {_fmt(row['wrong_fraction'])}")
         pm = pooled_metrics(per)
         row = {"suite": "external", "tracker": "inplane", "method": method, "features": kind,
                "model": model if kind == "learned" else None,
@@ -202,7 +207,8 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
         rows.append(row)
         log(f"  external {'pooled':28s} {kind:9s} median {_fmt(row['tip_error_median_mm'])} "
             f"p95 {_fmt(row['tip_error_p95_mm'])} mm, tracked {_fmt(row['tracked_fraction'])}, "
-            f"false {_fmt(row['false_tracking_fraction'])}, score {_fmt(row['score'], 3)}")
+            f"false {_fmt(row['false_tracking_fraction'])}, wrong {_fmt(row['wrong_fraction'])}, "
+            f"score {_fmt(row['score'], 3)}")
     return {"rows": rows, "traces": traces,
             "data": str(Path(directory) if directory is not None else data_dir())}
 
@@ -223,14 +229,16 @@ def markdown(result: dict, machine: dict) -> str:
     lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
              "Default in-plane tracker (no angle, no gauge given). Tip error over needle frames "
              "reported `tracking`; tracked: needle frames reported `tracking`; false: "
-             "needle-free frames reported `tracking`; score: needle frames tracked within "
+             "needle-free frames reported `tracking`; wrong: needle frames reported `tracking` "
+             f"more than {GOOD_MM:g} mm from the tip; score: needle frames tracked within "
              f"{GOOD_MM:g} mm of the tip over needle frames, less the false fraction (how models "
              "are chosen, docs/notes/inplane.md).", "",
              "| sequence | probe | needle | features | median (mm) | 95th (mm) | tracked | "
-             "false | score |", "|---|---|---|---|---|---|---|---|---|"]
+             "false | wrong | score |", "|---|---|---|---|---|---|---|---|---|---|"]
     lines += table_rows(result["rows"], lambda r: " ".join(
         v for v in (r["side"], None if r["angle_deg"] is None else f"{r['angle_deg']:g}°")
-        if v) or "yes", lambda r: _fmt(r.get("score"), 3))
+        if v) or "yes", lambda r: f"{_pct(r.get('wrong_fraction'))} | "
+                                  f"{_fmt(r.get('score'), 3)}")
     return "\n".join(lines)
 
 

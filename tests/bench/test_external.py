@@ -89,6 +89,8 @@ def test_sequence_metrics_on_hand_made_estimates():
     assert m["false_tracking_fraction"] == pytest.approx(1 / 4)
     # the model-choice score: 3 of 5 needle frames within 3 mm, less 1 of 4 needle-free
     assert m["within_3mm_frames"] == 3 and m["score"] == pytest.approx(3 / 5 - 1 / 4)
+    # a confident wrong answer: 1 of 5 needle frames tracked more than 3 mm off (4 mm)
+    assert m["wrong_frames"] == 1 and m["wrong_fraction"] == pytest.approx(1 / 5)
     # a sequence without needle frames has no tip statistics
     m2 = ext.sequence_metrics(np.zeros(3, bool), np.full((3, 2), np.nan),
                               np.full((3, 2), np.nan), np.zeros(3, bool), np.ones(3, bool))
@@ -100,6 +102,7 @@ def test_sequence_metrics_on_hand_made_estimates():
     assert p["false_tracking_fraction"] == pytest.approx(1 / 7)
     assert (p["needle_frames"], p["needle_free_frames"]) == (5, 7)
     assert p["score"] == pytest.approx(3 / 5 - 1 / 7)
+    assert p["wrong_fraction"] == pytest.approx(1 / 5) and m2["wrong_fraction"] is None
 
 
 def test_a_tracking_report_without_a_tip_is_not_a_tracked_frame():
