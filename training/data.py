@@ -108,14 +108,9 @@ class DataConfig:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.num_workers < 0:
             raise ValueError(f"num_workers must be 0 or more, got {self.num_workers}")
-        if not 0.0 <= self.inplane_boundaries <= 1.0:
-            raise ValueError(f"inplane_boundaries must be in [0, 1], got "
-                             f"{self.inplane_boundaries}")
-        if not 0.0 <= self.postprocess_fraction <= 1.0:
-            raise ValueError(f"postprocess_fraction must be in [0, 1], got "
-                             f"{self.postprocess_fraction}")
-        if not 0.0 <= self.zhao_fraction <= 1.0:
-            raise ValueError(f"zhao_fraction must be in [0, 1], got {self.zhao_fraction}")
+        for name in ("zhao_fraction", "inplane_boundaries", "postprocess_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         lo, hi = (float(v) for v in self.cr_range)
         if not 1.05 <= lo <= hi <= 10.0:  # Zhao eq. 9's domain in synth
             raise ValueError("cr_range must satisfy 1.05 <= low <= high <= 10, got "
