@@ -67,6 +67,8 @@ def randomize(modality: str, rng: np.random.Generator,
         }
         if cfg.inplane_boundaries > 0 and _maybe(rng, cfg.inplane_boundaries):
             narrow.update(boundary_beside(rng, narrow["needle_echo"]))
+        if cfg.inplane_reverb_free > 0 and _maybe(rng, cfg.inplane_reverb_free):
+            narrow["needle_overrides"] = {**needle, "reverb_count": 0}
         return "inplane", narrow
     if modality == "inplane":
         return "inplane", randomize_inplane(rng, common)
@@ -97,12 +99,17 @@ def randomize(modality: str, rng: np.random.Generator,
             return "volume-motion", {**vol, "motion_mm": _u(rng, 0, 4),
                                      "motion_deg": _u(rng, 0, 8)}
         start = _u(rng, 0.0, 12.0)
-        return "volume", {
+        world = {
             **vol, "zhao_mode": zhao, "cr": _draw_cr(rng, cfg) if zhao else None,
             "alpha_deg": _u(rng, 0, 90), "beta_deg": _u(rng, 55, 85),
             "start_length_mm": start, "stop_length_mm": start + _u(rng, 8, 25),
             "volume_rate_hz": 2.0,
         }
+        if cfg.volume_interfaces > 0 and _maybe(rng, cfg.volume_interfaces):
+            world.update(interface_in_volume(rng))
+        if cfg.volume_needle_free > 0 and _maybe(rng, cfg.volume_needle_free):
+            world.update(needle_free=True, cr=None)
+        return "volume", world
     raise ValueError(f"unknown modality {modality!r}")
 
 
@@ -122,6 +129,17 @@ def boundary_beside(rng: np.random.Generator, needle_echo: float) -> dict:
                                                                      np.log(2.5)))),
             "interface_roughness": 0.0 if _maybe(rng, 0.5) else _u(rng, 0.0, 0.6),
             "interface_tilt_deg": float(np.clip(rng.normal(0.0, 5.0), -15, 15))}
+
+
+def interface_in_volume(rng: np.random.Generator) -> dict:
+    """A bright tissue boundary beside the needle in a volume (synth's volume interface: the
+    plane holding the needle's axis, rolled about it by up to 40 degrees and moved 1.5-8 mm off
+    it to either side), 1.5-6 times as bright at the boundary as the tissue: a fascia's sheet,
+    whose lines along it are needle-like in every slice."""
+    return {"interface_offset_mm": float(rng.choice([-1, 1]) * rng.uniform(1.5, 8.0)),
+            "interface_roll_deg": _u(rng, -40.0, 40.0),
+            "interface_brightness": _u(rng, 1.5, 6.0),
+            "interface_factor": _u(rng, 0.6, 1.5)}
 
 
 def _wide_scanner(rng: np.random.Generator, imaging: dict, low_mhz: float, sector: float,
