@@ -84,9 +84,6 @@ class DataConfig:
     # in-plane narrow worlds only: the share of them with a tissue boundary's specular echo
     # beside the needle (a needle-like line that is no needle; worlds.boundary_beside)
     inplane_boundaries: float = 0.0
-    # in-plane narrow worlds only: the share of them whose needle shows no reverberation tail
-    # (a thin or steep needle, or an image formed without multiple reflections)
-    inplane_reverb_free: float = 0.0
     # volumes only: the share of Zhao-scenario worlds with a bright interface beside the needle
     # (worlds.interface_in_volume) and the share with no needle at all
     volume_interfaces: float = 0.0
@@ -115,8 +112,8 @@ class DataConfig:
                 raise ValueError(f"{name} must be at least 1, got {getattr(self, name)}")
         if self.num_workers < 0:
             raise ValueError(f"num_workers must be 0 or more, got {self.num_workers}")
-        for name in ("zhao_fraction", "inplane_boundaries", "inplane_reverb_free",
-                     "postprocess_fraction", "volume_interfaces", "volume_needle_free"):
+        for name in ("zhao_fraction", "inplane_boundaries", "postprocess_fraction",
+                     "volume_interfaces", "volume_needle_free"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         lo, hi = (float(v) for v in self.cr_range)

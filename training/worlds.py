@@ -67,8 +67,6 @@ def randomize(modality: str, rng: np.random.Generator,
         }
         if cfg.inplane_boundaries > 0 and _maybe(rng, cfg.inplane_boundaries):
             narrow.update(boundary_beside(rng, narrow["needle_echo"]))
-        if cfg.inplane_reverb_free > 0 and _maybe(rng, cfg.inplane_reverb_free):
-            narrow["needle_overrides"] = {**needle, "reverb_count": 0}
         return "inplane", narrow
     if modality == "inplane":
         return "inplane", randomize_inplane(rng, common)

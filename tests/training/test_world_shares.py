@@ -1,5 +1,5 @@
-"""Shares of training worlds drawn with one more feature: needles without a reverberation tail
-(narrow in-plane worlds), interfaces beside the needle and needle-free worlds (volumes)."""
+"""Shares of the volume training worlds drawn with an interface beside the needle, and with no
+needle at all."""
 
 import numpy as np
 import pytest
@@ -9,7 +9,7 @@ import synth
 pytest.importorskip("torch")
 pytest.importorskip("lightning")
 
-from training.data import DataConfig, sample_from_sequence  # noqa: E402
+from training.data import sample_from_sequence  # noqa: E402
 from training.train import config_for  # noqa: E402
 from training.worlds import randomize  # noqa: E402
 
@@ -17,20 +17,6 @@ from training.worlds import randomize  # noqa: E402
 def _draws(modality, n, **shares):
     cfg = config_for(modality, **shares).data
     return [randomize(modality, np.random.default_rng(s), cfg) for s in range(n)]
-
-
-def test_reverb_free_needles_are_drawn_in_their_share_and_change_nothing_else():
-    plain = _draws("inplane", 300)
-    half = _draws("inplane", 300, inplane_reverb_free=0.5)
-    counts = [w["needle_overrides"]["reverb_count"] for _, w in half]
-    assert min(w["needle_overrides"]["reverb_count"] for _, w in plain) >= 1
-    assert abs(np.mean(np.equal(counts, 0)) - 0.5) < 0.08
-    for (_, a), (_, b) in zip(plain, half, strict=True):
-        if b["needle_overrides"]["reverb_count"] == 0:
-            b = {**b, "needle_overrides": a["needle_overrides"]}
-        assert a == b
-    with pytest.raises(ValueError, match="inplane_reverb_free"):
-        DataConfig(inplane_reverb_free=1.5)
 
 
 def test_volume_interfaces_and_needle_free_worlds_are_drawn_in_their_shares():
