@@ -146,12 +146,14 @@ def _describe(seq: synth.Sequence) -> dict:
 
 
 def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
-        directory: str | Path | None = None, model: str | Path | None = None) -> dict:
+        directory: str | Path | None = None, model: str | Path | None = None,
+        features: tuple[str, ...] = ("classical", "learned")) -> dict:
     """Track every sequence of the set with classical and learned features; one row per
     sequence and features, then one pooled row per features. ``directory``: another set of
     labelled sequence files (every ``.npz`` in it, all of them even with ``quick``), all
     in-plane, all axial or all volume; ``model``: the learned features' ONNX model (default:
-    the shipped one of the set's modality)."""
+    the shipped one of the set's modality); ``features``: the kinds to run (learned ones only
+    where a model is installed)."""
     from ._trackers import _feature_kinds, _tier
 
     tier = _tier(quick, tier)
@@ -166,18 +168,19 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
                              f"the suite tracks a set of {modality} sequences (the set's "
                              f"first file is {seqs[0][0]}.npz)")
     model = None if model is None else str(model)
+    kinds = [k for k in _feature_kinds(modality, log) if k in features]
     if modality in ("axial", "volume"):
         if modality == "axial":
             from ._external_axial import run_axial_set as run_set
         else:
             from ._external_volume import run_volume_set as run_set
-        out = run_set(seqs, seed, log, rows, model)
+        out = run_set(seqs, seed, log, rows, model, kinds)
         return {**out, "data": str(Path(directory) if directory is not None else data_dir())}
     log(f"  external: {len(seqs)} sequences, {sum(s.n_frames for _, s in seqs)} frames"
         + (f", learned features from {model}" if model else ""))
 
     traces = {}
-    for kind in _feature_kinds("inplane", log):
+    for kind in kinds:
         per = []
         method = None
         for i, (name, seq) in enumerate(seqs):

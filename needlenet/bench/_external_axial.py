@@ -67,16 +67,16 @@ def _describe(seq: synth.Sequence) -> dict:
             "feature": m.get("feature"), "side": None, "angle_deg": None}
 
 
-def run_axial_set(seqs, seed: int, log, rows: list, model: str | None) -> dict:
-    """Track every axial sequence with classical and learned features; one row per sequence
+def run_axial_set(seqs, seed: int, log, rows: list, model: str | None,
+                  kinds: list[str]) -> dict:
+    """Track every axial sequence with each feature kind of ``kinds``; one row per sequence
     and features, then one pooled row per features."""
     from ..trackers import make_tracker
-    from ._trackers import _feature_kinds
 
     log(f"  external (axial): {len(seqs)} sequences, {sum(s.n_frames for _, s in seqs)} slices"
         + (f", learned features from {model}" if model else ""))
     traces = {}
-    for kind in _feature_kinds("axial", log):
+    for kind in kinds:
         per, preds, abs_preds = [], [], []
         for i, (name, seq) in enumerate(seqs):
             tracker = make_tracker("axial", "carriere", kind,

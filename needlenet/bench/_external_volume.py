@@ -68,19 +68,19 @@ def _failure_rate(failed: int, volumes: int) -> float | None:
     return failed / volumes if volumes else None
 
 
-def run_volume_set(seqs, seed: int, log, rows: list, model: str | None) -> dict:
-    """Track every volume sequence with the default volume method, classical and learned
-    features; one row per sequence and features, then one pooled row per features."""
+def run_volume_set(seqs, seed: int, log, rows: list, model: str | None,
+                   kinds: list[str]) -> dict:
+    """Track every volume sequence with the default volume method and each feature kind of
+    ``kinds``; one row per sequence and features, then one pooled row per features."""
     from ..trackers import make_tracker
     from ..trackers._registry import DEFAULT_METHODS
-    from ._trackers import _feature_kinds
 
     method = DEFAULT_METHODS["volume"]
     log(f"  external (volume): {len(seqs)} sequences, "
         f"{sum(s.n_frames for _, s in seqs)} volumes"
         + (f", learned features from {model}" if model else ""))
     traces = {}
-    for kind in _feature_kinds("volume", log):
+    for kind in kinds:
         per, failed, needle_volumes = [], 0, 0
         for i, (name, seq) in enumerate(seqs):
             tracker = make_tracker("volume", method, kind,

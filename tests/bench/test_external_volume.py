@@ -242,7 +242,7 @@ def test_the_bench_runs_a_volume_set_through_the_default_tracker(committed):
     pick = [next(x for x in short if x[1].meta["needle"]),
             next(x for x in short if not x[1].meta["needle"])]
     rows = []
-    out = run_volume_set(pick, 0, lambda m: None, rows, None)
+    out = run_volume_set(pick, 0, lambda m: None, rows, None, ["classical", "learned"])
     kinds = {r["features"] for r in rows}
     assert "classical" in kinds
     for kind in kinds:

@@ -1,0 +1,57 @@
+"""The model-choice tool (``tools/choose_model.py``): its score and its post-processed copies."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import synth
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _tool():
+    spec = importlib.util.spec_from_file_location("choose_model",
+                                                  ROOT / "tools" / "choose_model.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_volume_score_counts_good_wrong_and_needle_free_volumes():
+    pytest.importorskip("onnxruntime")
+    from needlenet.bench import _external
+
+    rows = _external.run(directory=ROOT / "needlenet" / "data" / "validation_volume",
+                         features=("learned",), log=lambda *a: None)["rows"]
+    assert {r["features"] for r in rows} == {"learned"}
+    pooled = next(r for r in rows if r["sequence"] == "pooled")
+    per = [r for r in rows if r["sequence"] != "pooled"]
+    needle = sum(r["needle_frames"] for r in per if r.get("needle_frames"))
+    good = sum(r["within_3mm_frames"] for r in per)
+    wrong = sum(r["wrong_frames"] for r in per)
+    free = [r for r in per if r.get("false_tracking_fraction") is not None]
+    expected = (good - wrong) / needle - np.mean([r["false_tracking_fraction"] for r in free])
+    score, false = _tool().score_set(ROOT / "needlenet" / "data" / "validation_volume", None)
+    assert score == pytest.approx(expected)
+    assert false == pooled["false_tracking_fraction"]
+    assert needle == 18 and -1.0 <= score <= 1.0
+
+
+def test_post_processed_copies_are_written_once(tmp_path):
+    src = tmp_path / "src"
+    src.mkdir()
+    seq = synth.generate("inplane", seed=3, frames=2, width_mm=12, depth_mm=12)
+    synth.save_sequence(seq, src / "a.npz")
+    tool = _tool()
+    dirs = tool.postprocessed_copies(src, tmp_path / "work")
+    assert [d.name for d in dirs] == list(tool.COPIES)
+    stamps = [(d / "a.npz").stat().st_mtime_ns for d in dirs]
+    for d in dirs:
+        copy = synth.load_sequence(d / "a.npz")
+        assert copy.images.shape == seq.images.shape and copy.images.dtype == np.uint8
+        assert np.array_equal(copy.tip_mm, seq.tip_mm)
+        assert np.mean(copy.images != seq.images) > 0.05
+    tool.postprocessed_copies(src, tmp_path / "work")
+    assert [(d / "a.npz").stat().st_mtime_ns for d in dirs] == stamps
