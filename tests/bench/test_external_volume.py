@@ -206,9 +206,9 @@ def test_the_volume_sets_are_apart_from_each_other_and_from_the_other_sets():
     others = SPECS + VALIDATION_SPECS + AXIAL_SPECS + AXIAL_VALIDATION_SPECS
     seeds = [s.seed for s in val + test]
     assert len(set(seeds)) == len(seeds) and not set(seeds) & {s.seed for s in others}
-    for specs in (val, test):  # both probes, a needle-free sequence, an interface
+    for specs in (val, test):  # both probes, needle-free sequences, an interface
         assert {s.probe for s in specs} == {"L11-5v", "P4-2v"}
-        assert sum(not s.needle for s in specs) == 1
+        assert sum(not s.needle for s in specs) >= 1
         assert any(s.needle and s.interface is not None for s in specs)
         for s in specs:  # oblique needles: neither level nor along an axis
             if s.needle:
