@@ -1,22 +1,18 @@
 """The model-choice tool (``tools/choose_model.py``): its score and its post-processed copies."""
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import synth
+from tests.tools import load_tool
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("choose_model",
-                                                  ROOT / "tools" / "choose_model.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_tool("choose_model")
 
 
 def test_the_volume_score_counts_good_wrong_and_needle_free_volumes():

@@ -4,7 +4,6 @@ where there is none. The PyMUST phased-array validation sequence without a needl
 interface across the sector) was reported `tracking` on 1-4 of its 14 frames through each of
 these but JPEG by the model shipped before session 23 (its base)."""
 
-import importlib.util
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,17 +11,14 @@ import numpy as np
 import pytest
 
 import synth
+from tests.tools import load_tool
 
 ROOT = Path(__file__).resolve().parents[2]
 SEQ = ROOT / "needlenet" / "data" / "validation" / "val_ph_no_needle.npz"
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("postprocessed_set",
-                                                  ROOT / "tools" / "postprocessed_set.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_tool("postprocessed_set")
 
 
 @pytest.mark.parametrize("op", ["bilateral", "median", "nlm", "sharpen", "jpeg", "diffusion"])
