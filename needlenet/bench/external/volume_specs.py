@@ -176,8 +176,7 @@ VOLUME_VALIDATION_SPECS = (
     VolumeSpec("vv_ph_no_needle", "P4-2v", 802, needle=False, interface=(0.0, 30.0, -12.0),
                interface_cr=2.5, vessel=(-4.0, 0.0, 22.0, 60.0, 2.5), dynamic_range_db=50,
                gamma=0.9, tissue_grey=90, feature="no needle; interface, vessel"),
-    # added in session 24, spec fixed before it was generated: a needle-free L11-5v volume
-    # with a bright interface across the sweep and a vessel (the set had a P4-2v one only)
+    # a needle-free L11-5v volume with a bright interface across the sweep and a vessel
     VolumeSpec("vv_lin_no_needle", "L11-5v", 703, needle=False, interface=(-2.0, 14.0, -10.0),
                interface_cr=2.5, vessel=(-3.0, 2.0, 10.0, 40.0, 2.0), dynamic_range_db=60,
                tissue_grey=85, feature="no needle; interface, vessel"),
