@@ -1,5 +1,5 @@
-"""Score learned-model candidates by the model-choice rule (docs/notes/inplane.md and
-docs/notes/volume-model.md, session 24), against the shipped model.
+"""Score learned-model candidates by the model-choice rules of docs/notes/inplane.md and
+docs/notes/volume-model.md, against the shipped model.
 
     python tools/choose_model.py inplane [CANDIDATE.onnx ...] [--work DIR]
     python tools/choose_model.py volume [CANDIDATE.onnx ...]
