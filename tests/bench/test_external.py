@@ -133,6 +133,15 @@ def test_the_suite_runs_on_a_short_sequence(committed, tmp_path):
         assert 0.0 <= r["tracked_fraction"] <= 1.0
     assert "| **pooled** |" in ext.markdown({"rows": rows}, {"cpu": "x", "cores": 2})
     assert out["data"] == str(tmp_path)
+    # one feature kind only, as the model-choice tool asks: the same rows for that kind
+    only = []
+    ext.run(tier="quick", seed=0, log=lambda m: None, rows=only, directory=tmp_path,
+            features=("classical",))
+    assert {r["features"] for r in only} == {"classical"}
+    def untimed(rs):
+        return [{k: v for k, v in r.items() if not k.startswith("latency")} for r in rs]
+
+    assert untimed(only) == untimed([r for r in rows if r["features"] == "classical"])
 
 
 def test_the_suite_is_registered():
