@@ -119,9 +119,12 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
         self._axis: tuple[np.ndarray, np.ndarray] | None = None  # (point, unit direction)
         self._still = StillLines(self.params.still)
         self._growing = GrowingMark(self.params.growing)
+        self._reappearing = GrowingMark(self.params.growing)  # a line after a needle left
         self._forget()
+        self._departed: tuple | None = None  # the confirmed needle last forgotten
 
     def _forget(self) -> None:
+        self._note_departure()
         self._x: np.ndarray | None = None  # (x, z, vx, vz), mm and mm/s
         self._P: np.ndarray | None = None
         self._dir: np.ndarray | None = None  # unit, entry -> tip
@@ -134,6 +137,7 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
         self._accepted_run = 0  # tip measurements accepted by the gate in a row
         self._out_of_sight = False  # the tracked needle was last seen running out of view
         self._since_full = 0
+        self._held_confirmed = False  # this track has been confirmed once
 
     @property
     def dt_s(self) -> float:
@@ -297,12 +301,14 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
         def priority(seg: NeedleLine) -> int:
             return int(enters(seg))
 
-        def shares_entry(seg: NeedleLine) -> bool:
-            """It enters within ``entry_margin_mm`` of where the tracked needle entered."""
-            if self._entry_mm is None:
+        def shares_entry(seg: NeedleLine, entry_mm: np.ndarray | None = None) -> bool:
+            """It enters within ``entry_margin_mm`` of where the tracked needle (or the
+            needle of ``entry_mm``) entered."""
+            entry_mm = self._entry_mm if entry_mm is None else entry_mm
+            if entry_mm is None:
                 return False
             fresh = entry_to_tip(seg, frame, p.orientation_min_angle_deg, inner)
-            return float(np.linalg.norm(fresh.start_mm - self._entry_mm)) <= p.entry_margin_mm
+            return float(np.linalg.norm(fresh.start_mm - entry_mm)) <= p.entry_margin_mm
 
         def runs_out(seg: NeedleLine) -> bool:
             """Its deeper end (either end of a near-horizontal one) lies at the edge of the
@@ -361,6 +367,10 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
             self._growing.clear()
         elif not self._grown(seg, priority):
             return self._missed(frame, seg, keep=self._out_of_view)
+        if new_line:
+            reason = self._not_inserted(seg, shares_entry)
+            if reason:
+                return self._missed(frame, seg, reason)
         if new_line and self._dir is not None:
             if self._outgrown(seg, frame.t, shares_entry):
                 return self._missed(frame, seg, (
@@ -368,6 +378,8 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
                     f"entered, {seg.length_mm - self._longest_mm:.0f} mm longer than the needle "
                     "could have grown since it was seen"))
             self._forget()  # another line than the one tracked: start anew
+        if new_line:
+            self._reappearing.clear()
         seg = self._orient(seg, frame, inner)
         reach, runs_on = self._reach_mm(seg, wm, frame, inner)
         if runs_on and self._confirmed:
@@ -536,6 +548,7 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
             return False, False
         self._rejects = 0
         self._accepted_run += 1
+        self._held_confirmed = self._held_confirmed or self._confirmed
         res = update(self._x, self._P, z, R, H)
         self._x, self._P = res.x, res.P
         return True, False

@@ -1,12 +1,14 @@
 """The `line` tracker's rules for a confirmed track (``confirm_after_frames`` tip measurements
 accepted in a row): a new line from its entry longer than the needle could have grown is the
-needle merged with a tissue line beside it, and a needle seen running on out of view holds the
-track. A mixin of :class:`~._inplane_line.LineTracker`, whose state it reads (``params``,
-``features``, the filter and the tracked line) and whose frame flags it sets."""
+needle merged with a tissue line beside it, a needle seen running on out of view holds the
+track, and once a confirmed needle has vanished, a line elsewhere is taken only when it grows
+as an insertion does. A mixin of :class:`~._inplane_line.LineTracker`, whose state it reads
+(``params``, ``features``, the filter and the tracked line) and whose frame flags it sets."""
 
 from __future__ import annotations
 
 from ..backends import NeedleLine, chi2_gate
+from ._inplane_geometry import on_line
 
 __all__ = ["ConfirmedTrack"]
 
@@ -50,3 +52,37 @@ class ConfirmedTrack:
             return False
         self._out_of_view = self._out_of_sight = True
         return True
+
+    def _note_departure(self) -> None:
+        """Remember the needle about to be forgotten, if its track was ever confirmed: its line
+        and its entry."""
+        if getattr(self, "_held_confirmed", False) and self._dir is not None and \
+                self._entry_mm is not None:
+            self._departed = (self._line_point.copy(), self._dir.copy(), self._entry_mm.copy())
+
+    def _not_inserted(self, seg: NeedleLine, shares_entry) -> str:
+        """Why ``seg``, a new line, is not taken for a needle: '' when it may be. A confirmed
+        needle does not give way within a frame to another needle elsewhere: a new insertion
+        takes time and shows itself growing where it enters. What does appear when a needle
+        leaves the plane is tissue: lines its shadow or its echo hid, or a needle-like line
+        the search ranked below it. So once a needle whose track was confirmed is gone (or
+        while it is tracked and the search offers another line), a line that neither lies on
+        its line nor enters where it entered (the needle back in the plane) is taken only
+        once it has grown by ``growing.growth_mm`` where it was first seen. The needle gone
+        stays the reference until a new insertion is seen or another track is confirmed.
+        Learned features only (see ``_grown``)."""
+        p = self.params
+        gone = self._departed
+        if self._dir is not None and self._held_confirmed:
+            gone = (self._line_point, self._dir, self._entry_mm)
+        if gone is None or self.features.kind != "learned":
+            return ""
+        point, direction, _ = gone
+        if on_line(seg, point, direction, p.track_window_deg, p.track_window_mm) or \
+                shares_entry(seg, gone[2]):
+            return ""
+        if self._reappearing.growth_mm(seg) >= p.growing.growth_mm:
+            self._departed = None  # a new insertion: the needle gone is no reference now
+            return ""
+        return (f"no needle: the {seg.length_mm:.0f} mm line appeared elsewhere when the needle "
+                "tracked was lost; it is taken once it grows where it enters, as an insertion")
