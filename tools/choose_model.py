@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
-from postprocessed_set import DEFAULTS, process  # noqa: E402
+from postprocessed_set import DEFAULTS, write_copies  # noqa: E402
 
 from needlenet.bench import _external  # noqa: E402
 
@@ -43,18 +43,13 @@ MAX_FALSE = 0.02  # in-plane: the issue's needle-free target, on every set
 
 def postprocessed_copies(src: Path, work: Path) -> list[Path]:
     """The copies of ``src`` through each of :data:`COPIES`, written under ``work`` once."""
+    files = sorted(src.glob("*.npz"))
     out = []
     for op in COPIES:
         dst = work / op
-        files = sorted(src.glob("*.npz"))
         if not all((dst / f.name).exists() for f in files):
             dst.mkdir(parents=True, exist_ok=True)
-            for f in files:
-                with np.load(f, allow_pickle=False) as z:
-                    d = dict(z)
-                s = float(np.min(d["spacing_mm"][:2]))
-                d["images"] = np.stack([process(im, s, op, DEFAULTS[op]) for im in d["images"]])
-                np.savez_compressed(dst / f.name, **d)
+            write_copies(files, dst, op, DEFAULTS[op])
         out.append(dst)
     return out
 

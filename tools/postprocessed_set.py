@@ -59,6 +59,16 @@ def process(image: np.ndarray, spacing_mm: float, op: str, value: float) -> np.n
     return postprocess(image, spacing_mm, [(op, params)])
 
 
+def write_copies(files, dst: Path, op: str, value: float) -> None:
+    """Each sequence file of ``files`` written into ``dst`` with its frames through ``op``."""
+    for f in files:
+        with np.load(f, allow_pickle=False) as z:
+            d = dict(z)
+        s = float(np.min(d["spacing_mm"][:2]))
+        d["images"] = np.stack([process(im, s, op, value) for im in d["images"]])
+        np.savez_compressed(dst / f.name, **d)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("src")
@@ -74,12 +84,7 @@ def main(argv=None) -> int:
     if dst.exists() and any(dst.iterdir()):
         ap.error(f"{dst} already holds files; give a new directory")
     dst.mkdir(parents=True, exist_ok=True)
-    for f in files:
-        with np.load(f, allow_pickle=False) as z:
-            d = dict(z)
-        s = float(np.min(d["spacing_mm"][:2]))
-        d["images"] = np.stack([process(im, s, a.op, value) for im in d["images"]])
-        np.savez_compressed(dst / f.name, **d)
+    write_copies(files, dst, a.op, value)
     print(f"wrote {len(files)} sequences to {dst} ({a.op} {value:g})")
     return 0
 

@@ -120,6 +120,7 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
         self._still = StillLines(self.params.still)
         self._growing = GrowingMark(self.params.growing)
         self._reappearing = GrowingMark(self.params.growing)  # a line after a needle left
+        self._held_confirmed = False  # this track has been confirmed once
         self._forget()
         self._departed: tuple | None = None  # the confirmed needle last forgotten
 

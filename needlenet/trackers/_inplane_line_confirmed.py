@@ -56,8 +56,7 @@ class ConfirmedTrack:
     def _note_departure(self) -> None:
         """Remember the needle about to be forgotten, if its track was ever confirmed: its line
         and its entry."""
-        if getattr(self, "_held_confirmed", False) and self._dir is not None and \
-                self._entry_mm is not None:
+        if self._held_confirmed and self._dir is not None and self._entry_mm is not None:
             self._departed = (self._line_point.copy(), self._dir.copy(), self._entry_mm.copy())
 
     def _not_inserted(self, seg: NeedleLine, shares_entry) -> str:
@@ -77,9 +76,9 @@ class ConfirmedTrack:
             gone = (self._line_point, self._dir, self._entry_mm)
         if gone is None or self.features.kind != "learned":
             return ""
-        point, direction, _ = gone
+        point, direction, entry = gone
         if on_line(seg, point, direction, p.track_window_deg, p.track_window_mm) or \
-                shares_entry(seg, gone[2]):
+                shares_entry(seg, entry):
             return ""
         if self._reappearing.growth_mm(seg) >= p.growing.growth_mm:
             self._departed = None  # a new insertion: the needle gone is no reference now
