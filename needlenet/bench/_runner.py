@@ -18,7 +18,8 @@ import numpy as np
 
 from ._machine import machine_description
 
-SUITES = ("synth", "models", "latency", "inplane", "axial", "volume", "servo", "external")
+SUITES = ("synth", "models", "latency", "inplane", "axial", "volume", "servo", "external",
+          "honesty")
 
 # the headline metric of each suite: a fixed key present in every row (lower is better for
 # the four tracking suites and latency; higher for the models' AUC and the simulator's speed)
@@ -26,16 +27,18 @@ HEADLINE = {
     "inplane": "tip_error_p95_mm", "volume": "failure_rate",
     "axial": "tip_prediction_error_mm", "servo": "rmse_p_mm", "latency": "latency_p99_ms",
     "models": "shaft_auc_mean", "synth": "frames_per_s", "external": "tip_error_p95_mm",
+    "honesty": "false_tracking_fraction",
 }
 LOWER_IS_BETTER = {"inplane": True, "volume": True, "axial": True, "servo": True,
-                   "latency": True, "models": False, "synth": False, "external": True}
+                   "latency": True, "models": False, "synth": False, "external": True,
+                   "honesty": True}
 # the fields that identify a configuration apart from its features (for the comparison)
 GROUP_BY = {
     "inplane": ("method",), "axial": ("method", "D_mm"),
     "volume": ("table", "method", "alpha_deg", "cr"),
     "servo": ("scenario", "method", "run"),
     "latency": ("tracker", "method"),
-    "external": ("sequence",),
+    "external": ("sequence",), "honesty": ("method",),
 }
 PAPERS = {
     "inplane": "Mathiassen et al. 2017, Table III", "volume": "Zhao et al. 2013, Tables 2-3",
@@ -75,6 +78,8 @@ def _suite_module(name: str):
         from . import _servo as mod
     elif name == "external":
         from . import _external as mod
+    elif name == "honesty":
+        from . import _honesty as mod
     else:
         from . import _trackers as tr
 
