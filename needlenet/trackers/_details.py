@@ -71,7 +71,7 @@ class InplaneDetails(EstimateDetails):
     hough_votes: int | None = None
     # DF: the Hough value of its axis
     detected: bool = False
-    # the needle was detected on this frame; the filters start here
+    # the first frame reported after a detection (found on the frame before, seen again here)
     coasting: bool = False
     # no needle seen on this frame (no tip): the filters predict through it
     velocity: str | None = None

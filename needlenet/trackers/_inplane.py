@@ -22,7 +22,10 @@ about 0 on tissue and 3-5 on a needle) reaches ``detect_contrast`` over at least
 average (:mod:`._inplane_evidence`). Because the fixed ROI's 12 rays span the whole image and
 a needle that has just entered meets only two or three of them, the detection searches once
 more with the feedback ROI up to the tip it found and keeps the better axis; the filters start
-there (the paper starts its method by hand once 10 mm of needle is visible). ``tracking``:
+there (the paper starts its method by hand once 10 mm of needle is visible). The needle is
+reported from the next frame on, when the detection search finds it there again (within the
+tracking search's +-5 degrees of it) and the tracking test below sees it; a detection the next
+frame does not confirm is dropped and the search runs again. ``tracking``:
 each frame measures as its method says; a frame on which the needle is not seen (contrast
 below ``keep_contrast``, or no echo along the axis) is not used as a measurement (the filters
 only predict) and reports ``lost`` without a tip, and after ``lost_after_frames`` such frames
@@ -73,14 +76,15 @@ from ..features import (
     ding_fenster,
     estimate_axis,
     load_tip_weights,
-    roi_anchor_mm,
     tip_features,
     tip_likelihood,
     tip_map_along_axis,
 )
 from ._base import NeedleEstimate, Status, Tracker
 from ._details import InplaneDetails
+from ._inplane_df import DingFensterStep
 from ._inplane_evidence import classical_echo_seen, learned_level_reached
+from ._inplane_growing import GrowingMarkParams
 from ._inplane_tip import TipFiltering, TipStep, mm_to_px
 
 __all__ = ["InplaneParams", "InplaneTracker"]
@@ -115,6 +119,9 @@ class InplaneParams:
     at the entry) stand ``echo_z`` noise SDs out of the tissue (:mod:`._inplane_evidence`).
     A frame on which the needle is not seen reports ``lost`` without a tip while the filters
     predict through it; after ``lost_after_frames`` such frames the track is forgotten.
+    ``df_axis_gate_mm``/``growing``: DF's two track rules (:mod:`._inplane_df`): how far
+    from the tracked needle's entry its axis may pass, and how a line off the axis of a needle
+    that left must grow to be taken.
     ``entry_side``: the paper's needle enters at the top right; ``"left"`` mirrors every frame
     (and the estimates back) for a needle from the left, and ``"auto"`` detects on both and
     keeps the side where the needle stands out more, deciding again at each detection.
@@ -143,6 +150,11 @@ class InplaneParams:
     # the axis (and of its entry half) leaves room for faint stretches and a tip estimate
     # ahead of the needle; the learned map's decision level, read as a share of the axis
     echo_coverage: float = 0.5
+    # DF (:mod:`._inplane_df`): a needle pivots at its entry, which moves well under a
+    # millimetre between frames; 2 mm leaves room for the Hough's 1-degree steps over a 45 mm
+    # axis (0.8 mm) and a 14 G needle's width
+    df_axis_gate_mm: float = 2.0
+    growing: GrowingMarkParams = field(default_factory=GrowingMarkParams)
 
     def __post_init__(self) -> None:
         if self.entry_side not in ENTRY_SIDES:
@@ -156,6 +168,9 @@ class InplaneParams:
             raise ValueError("lost_after_frames must be >= 1")
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
             raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
+        if not 0.0 < self.df_axis_gate_mm <= 100.0:
+            raise ValueError(f"df_axis_gate_mm must lie in (0, 100] mm, got "
+                             f"{self.df_axis_gate_mm}")
         if not self.echo_z > 0 or not 0.0 < self.echo_coverage <= 1.0:
             raise ValueError(f"need echo_z > 0 and 0 < echo_coverage <= 1, got {self.echo_z}, "
                              f"{self.echo_coverage}")
@@ -177,7 +192,7 @@ def _mirror_estimate(est: NeedleEstimate, grid) -> NeedleEstimate:
                    details=replace(est.details, mirrored=True))
 
 
-class InplaneTracker(TipFiltering, Tracker):
+class InplaneTracker(DingFensterStep, TipFiltering, Tracker):
     """Mathiassen 2017's in-plane trackers (Table III).
 
     Parameters
@@ -225,6 +240,7 @@ class InplaneTracker(TipFiltering, Tracker):
         self._last_t: float | None = None
         self._dt: float | None = None
         self._mirrored = self.params.entry_side == "left"
+        self._forget_departed()
 
     # ------------------------------------------------------------------ state
 
@@ -234,6 +250,7 @@ class InplaneTracker(TipFiltering, Tracker):
         self._clear_track()
         if hasattr(self, "_history"):
             self._history.clear()
+            self._forget_departed()
 
     def _clear_track(self) -> None:
         self._tip_filter = None
@@ -242,6 +259,9 @@ class InplaneTracker(TipFiltering, Tracker):
         self._theta_ref: float | None = None
         self._misses = 0
         self._first_fix: tuple[float, float] | None = None
+        self._confirming = False
+        self._df_line: tuple[np.ndarray, np.ndarray] | None = None  # DF: entry, direction
+        self._df_reported = False
 
     def tip_weights(self) -> TipWeights:
         """The weights of h(x), loaded on first use."""
@@ -319,8 +339,10 @@ class InplaneTracker(TipFiltering, Tracker):
     def dt_s(self) -> float:
         return self._dt if self._dt is not None else 1.0 / 20.0
 
-    def _search_range(self) -> dict:
-        if self._theta_ref is not None:
+    def _search_range(self, detecting: bool = False) -> dict:
+        """The angles Algorithm 2 searches: around the track's angle, or for a detection
+        (``detecting``, or no track) around the expected angle or over the full range."""
+        if self._theta_ref is not None and not detecting:
             centre = self._theta_ref
             if self._angle_filter is not None:
                 centre = self._angle_filter.theta_deg
@@ -360,11 +382,11 @@ class InplaneTracker(TipFiltering, Tracker):
                                       self._find(frame, image, previous, tip_map))
 
     def _find(self, frame, image, previous, tip_map):
-        """Algorithm 2's axis and the tip along it on one frame: (axis, feats, h, x_tip,
-        contrast)."""
+        """Algorithm 2's axis and the tip along it on one frame, searched as a detection is:
+        (axis, feats, h, x_tip, contrast)."""
         p = self.params
         grid = frame.grid
-        axis = estimate_axis(image, grid, p.axis, **self._search_range())
+        axis = estimate_axis(image, grid, p.axis, **self._search_range(detecting=True))
         feats, h = self._measure(image, previous, tip_map, grid, axis)
         x_tip = float(self._tip_positions_mm(feats, tip_map)[int(np.argmax(h))])
         first = float(axis.rays_mm[0])
@@ -393,13 +415,13 @@ class InplaneTracker(TipFiltering, Tracker):
             return NeedleEstimate(t=frame.t, status=self.status, reason="no needle found",
                                   details=details)
         self._start_track(axis, x_tip, frame)
-        return self._estimate(frame, axis, TipStep(x_tip, None), h, feats, contrast, tip_map,
-                              axis.theta_deg, detected=True, coverage=cover)
+        return self._unconfirmed(frame, contrast, axis.theta_deg, cover)
 
     def _start_track(self, axis: AxisEstimate, x_tip_mm: float, frame: Frame) -> None:
         self._clear_track()
         self._theta_ref = axis.theta_deg if self.expected_angle_deg is None else \
             self.expected_angle_deg
+        self._detected_deg = axis.theta_deg
         if self.filter_kind is not None:
             self._angle_filter = MathiassenAngleFilter(self.params.angle, axis.theta_deg)
             velocity = self._velocity_px_s(frame)
@@ -408,6 +430,37 @@ class InplaneTracker(TipFiltering, Tracker):
             else:
                 self._tip_filter = self._make_tip_filter(float(mm_to_px(x_tip_mm)), velocity)
         self._tip_along_mm = x_tip_mm
+        self._confirming = True
+
+    def _unconfirmed(self, frame, contrast: float, theta_deg: float,
+                     cover: float | None) -> NeedleEstimate:
+        """A detection's own frame: the track starts, and the needle is reported once it is
+        found again on the next frame (a tissue line that passes every single-frame test on
+        one frame rarely does so on the next, or loses the search to a needle in view)."""
+        return NeedleEstimate(t=frame.t, status=self.status,
+                              reason="needle found; reported when seen on the next frame",
+                              details=InplaneDetails(contrast, theta_measured_deg=theta_deg,
+                                                     echo_coverage=cover))
+
+    def _found_again(self, frame, image, previous, tip_map) -> tuple[bool, float, float | None]:
+        """Whether the detection search, run again on the frame after a detection, finds a
+        needle within the tracking search's angles of the detected one (a tissue line the
+        search took while no needle was in view gives way to a needle that is); with its
+        shaft contrast and echo coverage."""
+        p = self.params
+        axis, feats, _, x_tip, contrast = self._find(frame, image, previous, tip_map)
+        first = float(axis.rays_mm[0])
+        seen, cover = self._needle_seen(feats, first, x_tip)
+        again = (seen and contrast >= p.detect_contrast and x_tip - first >= p.min_length_mm
+                 and abs(axis.theta_deg - self._detected_deg) <= p.axis.search_half_range_deg)
+        return again, contrast, cover
+
+    def _not_confirmed(self, frame, contrast: float, cover: float | None) -> NeedleEstimate:
+        """The frame after a detection does not show the needle: the detection is dropped."""
+        self._clear_track()
+        return NeedleEstimate(t=frame.t, status=self.status,
+                              reason="the needle found on the frame before is not seen",
+                              details=InplaneDetails(contrast, echo_coverage=cover))
 
     # tracking ---------------------------------------------------------------------------
 
@@ -416,6 +469,10 @@ class InplaneTracker(TipFiltering, Tracker):
         grid = frame.grid
         if self.method == "df":
             return self._df(frame, image, previous, tip_map, detecting=False)
+        if self._confirming:
+            again, contrast, cover = self._found_again(frame, image, previous, tip_map)
+            if not again:
+                return self._not_confirmed(frame, contrast, cover)
         tip_along = self._tip_along_mm if self.feedback else None
         axis = estimate_axis(image, grid, p.axis, tip_along_mm=tip_along,
                              **self._search_range())
@@ -432,6 +489,9 @@ class InplaneTracker(TipFiltering, Tracker):
         seen = seen and contrast >= p.keep_contrast
         if not seen:  # no needle, no angle measured: the KF on theta keeps its estimate
             self._angle_filter = angle_before
+            if self._confirming:
+                return self._not_confirmed(frame, contrast, cover)
+        confirmed_now, self._confirming = self._confirming, False
         self._misses = 0 if seen else self._misses + 1
         if self._misses >= p.lost_after_frames:
             self._clear_track()
@@ -446,7 +506,7 @@ class InplaneTracker(TipFiltering, Tracker):
                                   details=InplaneDetails(contrast, coasting=True,
                                                          echo_coverage=cover))
         return self._estimate(frame, axis, step, h, feats, contrast, tip_map, theta_measured,
-                              coverage=cover)
+                              detected=confirmed_now, coverage=cover)
 
     def _needle_seen(self, feats, x_from_mm: float, x_to_mm: float
                      ) -> tuple[bool, float | None]:
@@ -459,53 +519,6 @@ class InplaneTracker(TipFiltering, Tracker):
         step = float(feats.x_mm[1] - feats.x_mm[0]) if len(feats.x_mm) > 1 else 1.0
         n = 2 * max(1, int(round(p.axis.ray_half_width_mm / step))) + 1  # 2s+1, eq. (1)
         return classical_echo_seen(feats, x_from_mm, x_to_mm, n, p.echo_z, p.echo_coverage)
-
-    # DF ---------------------------------------------------------------------------------
-
-    def _df(self, frame, image, previous, tip_map, detecting: bool) -> NeedleEstimate:
-        p = self.params
-        grid = frame.grid
-        centre = self.expected_angle_deg if self.expected_angle_deg is not None else \
-            self._theta_ref
-        res = ding_fenster(image, grid, centre, p.df)
-        contrast, seen, cover = 0.0, False, None
-        if res:
-            anchor = roi_anchor_mm(grid, p.axis)
-            vn, vp = axis_vectors(res.theta_deg)
-            axis = AxisEstimate(res.theta_deg, float((res.tip_mm - anchor) @ vp), 0.0,
-                                anchor, np.array([p.axis.ray_half_width_mm]), np.zeros(1),
-                                np.zeros(1))
-            x_tip = float((res.tip_mm - anchor) @ vn)
-            feats, h = self._measure(image, previous, tip_map, grid, axis)
-            first = float((res.entry_mm - anchor) @ vn)
-            contrast = feats.shaft_contrast(max(first, axis.rays_mm[0]), x_tip)
-            # the echo is judged from the ROI's corner, where the needle enters, to the tip
-            seen, cover = self._needle_seen(feats, float(axis.rays_mm[0]), x_tip)
-        need = p.detect_contrast if detecting else p.keep_contrast
-        found = bool(res) and contrast >= need and seen
-        self._misses = 0 if found else self._misses + 1
-        if not found:
-            reason = res.reason or (f"shaft contrast {contrast:.2f} below {need}" if
-                                    contrast < need else "no needle echo along the axis")
-            status = self.status if detecting else Status.LOST
-            if not detecting and self._misses >= p.lost_after_frames:
-                self._clear_track()
-            return NeedleEstimate(t=frame.t, status=status, reason=reason,
-                                  details=InplaneDetails(contrast, echo_coverage=cover))
-        if detecting:
-            self._clear_track()
-            self._theta_ref = res.theta_deg
-        self._tip_along_mm = x_tip
-        est = NeedleEstimate(
-            t=frame.t, status=Status.TRACKING, tip_mm=np.asarray(res.tip_mm, float),
-            direction=np.asarray(res.direction, float),
-            covariance=self._covariance(res.theta_deg, float(MathiassenTipParams().r_min_px2),
-                                        1.0 / 12.0 * (grid.spacing_mm[0] ** 2),
-                                        self.params.angle.r_theta_deg2, x_tip - first),
-            axis_point_mm=np.asarray(res.entry_mm, float),
-            details=InplaneDetails(contrast, theta_deg=res.theta_deg, hough_votes=res.votes,
-                                   echo_coverage=cover))
-        return est
 
     # output -----------------------------------------------------------------------------
 

@@ -54,15 +54,19 @@ def test_median_tip_error_below_one_millimetre(sequences, method):
     for angle, seq in sequences.items():
         estimates = InplaneTracker(method, expected_angle_deg=angle, rng=0).run(seq)
         err = _errors(estimates, seq)
-        assert np.all(np.isfinite(err)), f"{method} at {angle} deg lost the needle"
-        assert np.median(err) < 1.0, f"{method} at {angle} deg: median {np.median(err):.2f} mm"
+        # frame 0 finds the needle; it is reported from frame 1, where it is seen again
+        assert estimates[0].status == Status.SEARCHING and estimates[0].tip_mm is None
+        assert "next frame" in estimates[0].reason and estimates[1].details.detected
+        assert np.all(np.isfinite(err[1:])), f"{method} at {angle} deg lost the needle"
+        assert np.median(err[1:]) < 1.0, \
+            f"{method} at {angle} deg: median {np.median(err[1:]):.2f} mm"
 
 
 def test_feedback_velocity_filter_reaches_the_paper_precision(sequences):
     # KF_v+F, the paper's best method: sub-millimetre at the 95th percentile here
     for angle, seq in sequences.items():
         err = _errors(InplaneTracker("kfv+f", expected_angle_deg=angle).run(seq), seq)
-        assert np.percentile(err, 95) < 0.5
+        assert np.percentile(err[1:], 95) < 0.5  # frame 0: the detection, not reported
 
 
 def test_robot_velocity_is_used_in_px_per_second(sequences):
@@ -83,7 +87,8 @@ def test_particle_filters_are_reproducible(sequences):
     seq = sequences[35]
     a = InplaneTracker("pf+f", expected_angle_deg=35.0, seed=5).run(seq)
     b = InplaneTracker("pf+f", expected_angle_deg=35.0, rng=5).run(seq)
-    np.testing.assert_array_equal(np.array([e.tip_mm for e in a]), [e.tip_mm for e in b])
+    np.testing.assert_array_equal(np.array([e.tip_mm for e in a[1:]]),
+                                  [e.tip_mm for e in b[1:]])
 
 
 @pytest.fixture(scope="module")
@@ -107,11 +112,15 @@ def test_lost_when_the_needle_leaves_and_found_when_it_returns(comeback, method)
                                 insertion_speed_mm_s=10.0))
            for k, (seq, i) in enumerate(order)]
     status = [e.status for e in out]
-    assert all(s == Status.TRACKING for s in status[:10])
+    assert status[0] == Status.SEARCHING  # found; reported once seen on the next frame
+    assert all(s == Status.TRACKING for s in status[1:10])
     lost_after = InplaneParams().lost_after_frames
     assert all(s == Status.LOST for s in status[10 + lost_after - 1:16])
     assert all(e.tip_mm is None for e in out[10 + lost_after - 1:16])
-    assert all(s == Status.TRACKING for s in status[16:])
+    # the track was forgotten in the gap: found again on the needle's first frame back,
+    # reported from the next
+    assert status[16] == Status.LOST and out[16].tip_mm is None
+    assert all(s == Status.TRACKING for s in status[17:])
     err = [np.linalg.norm(e.tip_mm - needle.tip_mm[i])
            for e, (_, i) in zip(out[-5:], order[-5:], strict=True)]
     assert max(err) < (1.5 if method == "df" else 1.0)
@@ -125,9 +134,9 @@ def test_constant_and_nan_frames_never_raise(sequences):
         Status.SEARCHING
     nan = np.full(grid.shape, np.nan, np.float32)
     assert tracker.update(Frame(nan, grid, t=0.05)).status == Status.SEARCHING
-    for i in range(5):
+    for i in range(5):  # found on the first needle frame, reported from the second
         assert tracker.update(Frame(seq.images[i], grid, t=0.1 + 0.05 * i)).status == \
-            Status.TRACKING
+            (Status.SEARCHING if i == 0 else Status.TRACKING)
     est = tracker.update(Frame(np.full(grid.shape, 7, np.uint8), grid, t=0.4))
     assert est.status == Status.LOST and "constant" in est.reason
     est = tracker.update(Frame(nan, grid, t=0.45))
@@ -162,9 +171,9 @@ def test_a_tip_map_replaces_the_five_features(sequences):
     estimates = InplaneTracker("om", _TipMapSource(seq), expected_angle_deg=45.0,
                                weights="/nonexistent.json",
                                params=InplaneParams(learned_level=0.0)).run(seq)
-    along = [e.details.tip_along_mm for e in estimates]
+    along = [e.details.tip_along_mm for e in estimates[1:]]  # frame 0 finds the needle
     truth = [(t - e.axis_point_mm) @ e.direction for e, t in
-             zip(estimates, seq.tip_mm, strict=True)]
+             zip(estimates[1:], seq.tip_mm[1:], strict=True)]
     np.testing.assert_allclose(along, truth, atol=0.6)  # the map's peak, not the features'
 
 
@@ -227,3 +236,57 @@ def test_settings_the_methods_cannot_run_are_refused_when_read(setting, message)
 
     with pytest.raises(ValueError, match=message):
         tracker_params("inplane", [setting], "kf+f")
+
+
+@pytest.mark.parametrize("method", ["kf+f", "om"])
+def test_a_tissue_line_found_on_one_frame_only_is_not_reported(method):
+    """Issue 21's protocol, shortened (world 13 at 5 mm/s, frames 25-44 without the needle):
+    with no angle given, the full-range search finds a 19-degree tissue line through the ROI's
+    corner on every fourth needle-free frame, and the tracking test on the next frame does not
+    see it (6 and 5 needle-free frames were reported `tracking`, one per find, before a
+    detection waited for that frame). The needle is reported again within 10 frames of its
+    return."""
+    seq = synth.generate("inplane", seed=13, frames=70, speed_mm_s=5.0)
+    free = synth.generate("inplane", seed=13, frames=70, speed_mm_s=5.0, needle_free=True)
+    images = seq.images.copy()
+    images[25:45] = free.images[25:45]
+    est = InplaneTracker(method, rng=0).run(dataclasses.replace(seq, images=images))
+    assert not any(e.status == Status.TRACKING for e in est[25:45])
+    err = _errors(est, seq)
+    back = np.flatnonzero(err[45:] < 2.0)
+    assert back.size and back[0] < 10
+
+
+def test_df_does_not_take_a_tissue_line_beside_the_needle_that_left():
+    """World 18 (default speed), frames 25-44 without the needle: DF's Hough search, within
+    +-5 degrees of the tracked 45 degrees, finds a 6 mm tissue line entering the right edge
+    7.5 mm below the needle's entry (17 of the 20 needle-free frames were `tracking` before
+    the axis gate and the growth rule). The needle, back on its own axis, is taken again."""
+    seq = synth.generate("inplane", seed=18, frames=60)
+    free = synth.generate("inplane", seed=18, frames=60, needle_free=True)
+    images = seq.images.copy()
+    images[25:45] = free.images[25:45]
+    est = InplaneTracker("df", rng=0).run(dataclasses.replace(seq, images=images))
+    assert not any(e.status == Status.TRACKING for e in est[25:45])
+    err = _errors(est, seq)
+    back = np.flatnonzero(err[45:] < 2.0)
+    assert back.size and back[0] < 10
+
+
+def test_df_takes_a_line_off_the_departed_axis_only_once_it_grows():
+    from needlenet.features._hough import DFResult
+
+    tr = InplaneTracker("df")
+    d = np.array([-np.sqrt(0.5), np.sqrt(0.5)])
+    entry = np.array([19.0, 0.5])
+    tr._df_departed = (entry, d)
+
+    def line(start, length):
+        return DFResult(True, theta_deg=45.0, direction=d, entry_mm=start,
+                        tip_mm=start + length * d)
+
+    beside = entry + np.array([0.0, 7.5])  # 5.3 mm off the departed axis
+    assert not tr._df_taken(line(beside, 6.0))
+    assert not tr._df_taken(line(beside, 6.4))  # a still line's end jitters
+    assert tr._df_taken(line(beside, 7.2))  # grown by 1.2 mm where it was first seen
+    assert tr._df_taken(line(entry + np.array([0.5, 0.5]), 6.0))  # on the departed axis
