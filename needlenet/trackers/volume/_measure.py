@@ -12,6 +12,7 @@ learned features the map finds the needle and the B-mode image places it
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,13 +26,18 @@ from ...backends import (
     tip_along_axis,
     within_angle,
 )
-from ._geometry import Volume, profile, run_out_distance
+from ._geometry import RING_ANGLES, Volume, profile, ring_section, run_out_distance
 from ._placement import image_tip, needle_contrast, refine_on_image, tip_on_map
 from .params import MeasurementParams, VolumeTrackerParams
 
-__all__ = ["Measurement", "candidates", "fail", "locate", "measure", "median_profile",
-           "needle_run", "threshold"]
+__all__ = ["Measurement", "candidates", "fail", "locate", "map_sheet", "measure",
+           "median_profile", "needle_run", "threshold"]
 
+# the ring on which a line's map is read for a sheet (mm): past a needle's radius and the
+# map's blur, within reach of an interface the line lies in
+_SHEET_RING_MM = (2.0, 3.0)
+# ... and the least share of the map's level along the axis that counts as evidence there
+_SHEET_FLOOR = 0.1
 # A tip hint decides the orientation when it projects farther than this fraction of the
 # needle's length from its middle.
 _HINT_MARGIN = 0.1
@@ -153,17 +159,58 @@ def median_profile(vol: Volume, model, a0: float, a1: float, mp: MeasurementPara
     return float(np.median(profile(vol, model, a, mp.profile_radius_mm)))
 
 
+def map_sheet(vol: Volume, model, a0: float, a1: float, mp: MeasurementParams) -> float:
+    """How far the map stands up on two opposite sides of the axis, over its level around it:
+    on a ring 2-3 mm around the axis from ``a0`` to ``a1`` (``RING_ANGLES`` directions, each
+    averaged along the axis and over the ring's radii, samples inside the sector only), the
+    largest level reached on both sides of one direction over the mean of all directions.
+
+    A needle's map is a tube: whatever of it reaches the ring (the map's blur, the point
+    spread) reaches it all round, about 1. A line that lies in a sheet of evidence, an
+    interface's, has the sheet on two opposite sides and tissue elsewhere: well above 1.
+    0 when the ring lies outside the sector or holds no evidence: where it stands on both
+    sides, under a tenth of the map's median along the axis (:func:`median_profile`)."""
+    step = 0.5 * float(vol.spacing.min())
+    a = np.arange(a0, a1 + step, step)
+    if a.size == 0:
+        return 0.0
+    pts = ring_section(model, a, _SHEET_RING_MM)  # radius-major: (radii * RING_ANGLES, K, 3)
+    values = vol.sample(vol.values, pts, output=np.float32)
+    inside = vol.sample(vol.sector.view(np.uint8), pts, order=0) > 0
+    values = np.where(inside, values, np.nan).reshape(-1, RING_ANGLES, a.size)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a direction wholly outside: NaN
+        level = np.nanmean(values, axis=(0, 2))
+        mean = float(np.nanmean(level))
+        half = RING_ANGLES // 2
+        both = np.minimum(level[:half], level[half:])  # NaN where a side lies outside
+        if not np.isfinite(mean) or mean <= 0 or not np.isfinite(both).any():
+            return 0.0
+        top = float(np.nanmax(both))
+    if top < _SHEET_FLOOR * median_profile(vol, model, a0, a1, mp):
+        return 0.0
+    return top / mean
+
+
 def implausible_start(vol: Volume, m: Measurement, p: VolumeTrackerParams,
-                      min_likelihood: float, min_contrast: float) -> str | None:
+                      min_likelihood: float, min_contrast: float,
+                      max_sheet: float = 0.0) -> str | None:
     """Why a found axis is no needle to start a track on, or None: on a learned map, a median
     likelihood along it below ``min_likelihood`` (the map does not see a needle there: an
-    interface's sheet, tissue); on a classical image, a needle no more than ``min_contrast``
-    times as bright as the tissue 2-3 mm around it. 0 turns a test off."""
+    interface's sheet, tissue), or a map that stands up on two opposite sides of it more than
+    ``max_sheet`` over its level around it (:func:`map_sheet`: a line lying in a sheet); on a
+    classical image, a needle no more than ``min_contrast`` times as bright as the tissue 2-3
+    mm around it. 0 turns a test off."""
     if vol.learned and min_likelihood > 0:
         likely = median_profile(vol, m.model, m.a_entry, m.a_tip, p.measurement)
         if likely < min_likelihood:
             return (f"the map does not see a needle there: median likelihood {likely:.2f} < "
                     f"{min_likelihood}")
+    if vol.learned and max_sheet > 0:
+        sheet = map_sheet(vol, m.model, m.a_entry, m.a_tip, p.measurement)
+        if sheet > max_sheet:
+            return (f"a line in a sheet of evidence, no needle: the map 2-3 mm from it stands "
+                    f"{sheet:.2f} times its mean around it on two opposite sides (> {max_sheet})")
     if not vol.learned and min_contrast > 0:
         contrast = needle_contrast(vol, m.model, m.a_entry, m.a_tip, p.placement)
         if contrast < min_contrast:

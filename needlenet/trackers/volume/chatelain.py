@@ -243,7 +243,8 @@ class ChatelainTracker(VolumeTracker, method="chatelain"):
             return fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
                         f"mm inside the sector", m.trials, m.roi_voxels, m.inliers)
         why = runs_out(vol, m, c.start_tip_margin_mm) or \
-            implausible_start(vol, m, p, c.start_min_likelihood, c.start_min_contrast)
+            implausible_start(vol, m, p, c.start_min_likelihood, c.start_min_contrast,
+                              c.start_max_sheet)
         if why is not None:
             return fail(why, m.trials, m.roi_voxels, m.inliers)
         if c.n_control_points == 3:

@@ -253,6 +253,11 @@ class RoiRkParams:
     init_min_contrast : float
         Classical features: a found axis whose image is not this many times as bright as the
         tissue 2-3 mm around it is set aside (0: no test); Chatelain's tracker's figure.
+    init_max_sheet : float
+        Learned features: a found axis whose map stands up more than this on two opposite
+        sides of a ring 2-3 mm around it, over the ring's mean (:func:`map_sheet`), is set
+        aside (0: no test): a needle is a tube of evidence (about 1), a line lying in an
+        interface's sheet is not (1.4-3). Chatelain's tracker's figure.
     init_tip_margin_mm : float
         A found axis whose tip lies closer than this to the sector's boundary along the needle
         is set aside (0: no test): Zhao tracks a tip inside the volume, and a line that runs on
@@ -291,6 +296,7 @@ class RoiRkParams:
     init_select_ratio: float = 1.2
     init_min_likelihood: float = 0.25
     init_min_contrast: float = 1.8
+    init_max_sheet: float = 1.3
     init_tip_margin_mm: float = 1.5
     roi_radius_mm: float = 2.5
     max_axis_jump_deg: float = 15.0
@@ -312,7 +318,7 @@ class RoiRkParams:
                                "r_position", "r_velocity", "p0_angle_rate", "p0_velocity",
                                "init_select_ratio"))
         _check_non_negative(self, ("speckle_search_mm", "init_min_likelihood",
-                                   "init_min_contrast", "init_tip_margin_mm"))
+                                   "init_min_contrast", "init_max_sheet", "init_tip_margin_mm"))
         _check_integers(self, (("init_attempts", 1),))
         if self.init_select not in ("support", "likelihood"):
             raise ValueError(f"init_select must be 'support' or 'likelihood', "
@@ -360,6 +366,11 @@ class ChatelainParams:
     start_min_contrast : float
         Classical features: start only on a needle at least this many times as bright as the
         tissue 2-3 mm around it (0: no test); 1.8 lies between tissue lines and needles.
+    start_max_sheet : float
+        Learned features: start only on a needle whose map, on a ring 2-3 mm around it, stands
+        up on two opposite sides no more than this over the ring's mean (:func:`map_sheet`; 0:
+        no test): a needle's evidence is a tube (0.5-1.1 on synth and PyMUST volumes), a line
+        lying in an interface's sheet has the sheet on both sides (1.4-3.2). 1.3 lies between.
     q_control : float
         Process noise of the constant-velocity model, eqs. (4)-(9) (mm^2/s^3): allows a
         withdrawal's velocity reversal within a volume or two.
@@ -386,6 +397,7 @@ class ChatelainParams:
     start_min_likelihood: float = 0.25
     start_tip_margin_mm: float = 1.5
     start_min_contrast: float = 1.8
+    start_max_sheet: float = 1.3
     q_control: float = 50.0
     r_control: float = 0.25
     p0_control_velocity: float = 100.0
@@ -396,7 +408,8 @@ class ChatelainParams:
                                "init_voi_radius_mm", "max_angle_deg", "q_control",
                                "r_control", "p0_control_velocity"))
         _check_non_negative(self, ("voi_margin_mm", "start_min_likelihood",
-                                   "start_tip_margin_mm", "start_min_contrast"))
+                                   "start_tip_margin_mm", "start_min_contrast",
+                                   "start_max_sheet"))
         _check_integers(self, (("detection_window", 1), ("max_coast_volumes", 0)))
         if self.insertion_candidates_mm3 is not None and not (
                 np.isfinite(self.insertion_candidates_mm3) and self.insertion_candidates_mm3 > 0):

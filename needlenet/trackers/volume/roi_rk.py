@@ -196,7 +196,8 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
                          f"mm inside the sector", m.trials, m.roi_voxels, m.inliers)
             why = None if not m.ok else (
                 runs_out(vol, m, r.init_tip_margin_mm)
-                or implausible_start(vol, m, p, r.init_min_likelihood, r.init_min_contrast))
+                or implausible_start(vol, m, p, r.init_min_likelihood, r.init_min_contrast,
+                                     r.init_max_sheet))
             if why is not None:
                 m = fail(why, m.trials, m.roi_voxels, m.inliers)
             if m.ok and not choose:
