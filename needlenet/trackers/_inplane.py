@@ -24,7 +24,8 @@ a needle that has just entered meets only two or three of them, the detection se
 more with the feedback ROI up to the tip it found and keeps the better axis; the filters start
 there (the paper starts its method by hand once 10 mm of needle is visible). The needle is
 reported from the next frame on, when the detection search finds it there again (within the
-tracking search's +-5 degrees of it) and the tracking test below sees it; a detection the next
+tracking search's +-5 degrees of it and ``axis_gate_mm`` of its entry, seen as the tracking
+test sees a needle) and the tracking test below sees it; a detection the next
 frame does not confirm is dropped and the search runs again. ``tracking``:
 each frame measures as its method says; a frame on which the needle is not seen (contrast
 below ``keep_contrast``, or no echo along the axis) is not used as a measurement (the filters
@@ -119,9 +120,9 @@ class InplaneParams:
     at the entry) stand ``echo_z`` noise SDs out of the tissue (:mod:`._inplane_evidence`).
     A frame on which the needle is not seen reports ``lost`` without a tip while the filters
     predict through it; after ``lost_after_frames`` such frames the track is forgotten.
-    ``df_axis_gate_mm``/``growing``: DF's two track rules (:mod:`._inplane_df`): how far
-    from the tracked needle's entry its axis may pass, and how a line off the axis of a needle
-    that left must grow to be taken.
+    ``axis_gate_mm``: how far from a needle's entry its axis may pass on the next frame (the
+    confirmation of a detection; DF's track, :mod:`._inplane_df`); ``growing``: how a line off
+    the axis of a needle that left must grow for DF to take it.
     ``entry_side``: the paper's needle enters at the top right; ``"left"`` mirrors every frame
     (and the estimates back) for a needle from the left, and ``"auto"`` detects on both and
     keeps the side where the needle stands out more, deciding again at each detection.
@@ -150,10 +151,9 @@ class InplaneParams:
     # the axis (and of its entry half) leaves room for faint stretches and a tip estimate
     # ahead of the needle; the learned map's decision level, read as a share of the axis
     echo_coverage: float = 0.5
-    # DF (:mod:`._inplane_df`): a needle pivots at its entry, which moves well under a
-    # millimetre between frames; 2 mm leaves room for the Hough's 1-degree steps over a 45 mm
-    # axis (0.8 mm) and a 14 G needle's width
-    df_axis_gate_mm: float = 2.0
+    # a needle pivots at its entry, which moves well under a millimetre between frames; 2 mm
+    # leaves room for a 1-degree angle step over a 45 mm axis (0.8 mm) and a 14 G needle's width
+    axis_gate_mm: float = 2.0
     growing: GrowingMarkParams = field(default_factory=GrowingMarkParams)
 
     def __post_init__(self) -> None:
@@ -168,9 +168,8 @@ class InplaneParams:
             raise ValueError("lost_after_frames must be >= 1")
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
             raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
-        if not 0.0 < self.df_axis_gate_mm <= 100.0:
-            raise ValueError(f"df_axis_gate_mm must lie in (0, 100] mm, got "
-                             f"{self.df_axis_gate_mm}")
+        if not 0.0 < self.axis_gate_mm <= 100.0:
+            raise ValueError(f"axis_gate_mm must lie in (0, 100] mm, got {self.axis_gate_mm}")
         if not self.echo_z > 0 or not 0.0 < self.echo_coverage <= 1.0:
             raise ValueError(f"need echo_z > 0 and 0 < echo_coverage <= 1, got {self.echo_z}, "
                              f"{self.echo_coverage}")
@@ -421,7 +420,7 @@ class InplaneTracker(DingFensterStep, TipFiltering, Tracker):
         self._clear_track()
         self._theta_ref = axis.theta_deg if self.expected_angle_deg is None else \
             self.expected_angle_deg
-        self._detected_deg = axis.theta_deg
+        self._detected_axis = axis
         if self.filter_kind is not None:
             self._angle_filter = MathiassenAngleFilter(self.params.angle, axis.theta_deg)
             velocity = self._velocity_px_s(frame)
@@ -443,16 +442,21 @@ class InplaneTracker(DingFensterStep, TipFiltering, Tracker):
                                                      echo_coverage=cover))
 
     def _found_again(self, frame, image, previous, tip_map) -> tuple[bool, float, float | None]:
-        """Whether the detection search, run again on the frame after a detection, finds a
-        needle within the tracking search's angles of the detected one (a tissue line the
-        search took while no needle was in view gives way to a needle that is); with its
-        shaft contrast and echo coverage."""
+        """Whether the detection search, run again on the frame after a detection, finds the
+        detected needle there, seen as the tracking test sees it: its axis within the tracking
+        search's angles of the detected one and passing within ``axis_gate_mm`` of its entry
+        (a tissue line the search took while no needle was in view gives way to a needle that
+        is); with its shaft contrast and echo coverage."""
         p = self.params
         axis, feats, _, x_tip, contrast = self._find(frame, image, previous, tip_map)
         first = float(axis.rays_mm[0])
         seen, cover = self._needle_seen(feats, first, x_tip)
-        again = (seen and contrast >= p.detect_contrast and x_tip - first >= p.min_length_mm
-                 and abs(axis.theta_deg - self._detected_deg) <= p.axis.search_half_range_deg)
+        before = self._detected_axis
+        entry = before.point_mm(float(before.rays_mm[0]))
+        d = entry - axis.point_mm(0.0)
+        off = float(abs(d[0] * axis.direction[1] - d[1] * axis.direction[0]))
+        again = (seen and contrast >= p.keep_contrast and off <= p.axis_gate_mm
+                 and abs(axis.theta_deg - before.theta_deg) <= p.axis.search_half_range_deg)
         return again, contrast, cover
 
     def _not_confirmed(self, frame, contrast: float, cover: float | None) -> NeedleEstimate:

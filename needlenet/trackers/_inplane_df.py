@@ -6,7 +6,7 @@ A per-frame detector holds no track, so two rules of ours give it one, both from
 insertion can do between frames:
 
 - the needle pivots at its entry; its axis cannot jump sideways between frames. While a needle
-  is tracked, a Hough axis that passes more than ``df_axis_gate_mm`` from the tracked axis's
+  is tracked, a Hough axis that passes more than ``axis_gate_mm`` from the tracked axis's
   entry is another line (a tissue line at the needle's angle, found when the needle has left
   the plane) and counts as a frame without the needle;
 - once a reported needle has been lost, a line that does not lie on its axis (the same gate)
@@ -65,7 +65,7 @@ class DingFensterStep:
         found = bool(res) and contrast >= need and seen
         if found and not detecting and self._df_line is not None:
             off = _off_axis_mm(self._df_line[0], res.entry_mm, res.direction)
-            if off > p.df_axis_gate_mm:
+            if off > p.axis_gate_mm:
                 found = False
                 reason = f"DF's axis passes {off:.1f} mm from the tracked needle's entry"
         if detecting and not found:
@@ -117,7 +117,7 @@ class DingFensterStep:
         if self._df_departed is None:
             return True
         entry, direction = self._df_departed
-        if _off_axis_mm(entry, res.entry_mm, res.direction) <= self.params.df_axis_gate_mm:
+        if _off_axis_mm(entry, res.entry_mm, res.direction) <= self.params.axis_gate_mm:
             return True
         seg = NeedleLine(True, "", np.asarray(res.entry_mm, float),
                          np.asarray(res.tip_mm, float), np.asarray(res.direction, float))
