@@ -1,7 +1,7 @@
 """``needlenet bench honesty``: does an in-plane tracker say when the needle has gone, and
 does it pick the needle up again when it comes back?
 
-Protocol (issue 21): a 140-frame synth insertion at 5 mm/s whose frames 55-84 are replaced by
+Protocol: a 140-frame synth insertion at 5 mm/s whose frames 55-84 are replaced by
 the same world's frames without the needle (the needle leaves the plane and returns; the
 tissue, its lines and interfaces stay). 5 mm/s keeps the tip in view after the gap, so the
 return can be scored on every world. Each tracker runs with no angle and no entry side given,
@@ -34,7 +34,7 @@ GAP = (55, 85)  # needle-free frames [55, 85)
 SPEED_MM_S = 5.0
 WITHIN_MM = 2.0
 REACQUIRE_FRAMES = 10
-# issue 21's three worlds and the five after them (no world left out)
+# consecutive worlds, none left out
 SEEDS = {"demo": (11,), "quick": (11, 12, 13), "full": tuple(range(11, 19))}
 QUICK_METHODS = ("line", "kf+f", "df")
 
@@ -129,7 +129,7 @@ def markdown(result: dict, machine: dict) -> str:
     rows = result["rows"]
     worlds = rows[0]["worlds"] if rows else []
     lines = [f"Machine: {machine['cpu']}, {machine['cores']} cores", "",
-             f"Issue 21's needle-free protocol: synth worlds {', '.join(map(str, worlds))}, "
+             f"Needle-free protocol: synth worlds {', '.join(map(str, worlds))}, "
              f"{FRAMES} frames at {SPEED_MM_S:g} mm/s, frames {GAP[0]}-{GAP[1] - 1} without the "
              f"needle; no angle or entry side given. Re-acquired: the tip within {WITHIN_MM:g} "
              f"mm within {REACQUIRE_FRAMES} frames of the return. Frames to re-acquire per "
