@@ -85,6 +85,7 @@ from ._base import NeedleEstimate, Status, Tracker
 from ._details import InplaneDetails
 from ._inplane_df import DingFensterStep
 from ._inplane_evidence import classical_echo_seen, learned_level_reached
+from ._inplane_geometry import off_line_mm
 from ._inplane_growing import GrowingMarkParams
 from ._inplane_tip import TipFiltering, TipStep, mm_to_px
 
@@ -452,9 +453,8 @@ class InplaneTracker(DingFensterStep, TipFiltering, Tracker):
         first = float(axis.rays_mm[0])
         seen, cover = self._needle_seen(feats, first, x_tip)
         before = self._detected_axis
-        entry = before.point_mm(float(before.rays_mm[0]))
-        d = entry - axis.point_mm(0.0)
-        off = float(abs(d[0] * axis.direction[1] - d[1] * axis.direction[0]))
+        off = off_line_mm(before.point_mm(float(before.rays_mm[0])), axis.point_mm(0.0),
+                          axis.direction)
         again = (seen and contrast >= p.keep_contrast and off <= p.axis_gate_mm
                  and abs(axis.theta_deg - before.theta_deg) <= p.axis.search_half_range_deg)
         return again, contrast, cover

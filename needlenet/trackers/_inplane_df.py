@@ -23,15 +23,10 @@ from ..backends import MathiassenTipParams, NeedleLine
 from ..features import AxisEstimate, axis_vectors, ding_fenster, roi_anchor_mm
 from ._base import NeedleEstimate, Status
 from ._details import InplaneDetails
+from ._inplane_geometry import off_line_mm
 from ._inplane_growing import GrowingMark
 
 __all__ = ["DingFensterStep"]
-
-
-def _off_axis_mm(entry_mm: np.ndarray, line_point: np.ndarray, direction: np.ndarray) -> float:
-    """Distance of ``entry_mm`` from the line through ``line_point`` along ``direction``."""
-    d = np.asarray(entry_mm, float) - np.asarray(line_point, float)
-    return float(abs(d[0] * direction[1] - d[1] * direction[0]))
 
 
 class DingFensterStep:
@@ -64,7 +59,7 @@ class DingFensterStep:
         need = p.detect_contrast if detecting else p.keep_contrast
         found = bool(res) and contrast >= need and seen
         if found and not detecting and self._df_line is not None:
-            off = _off_axis_mm(self._df_line[0], res.entry_mm, res.direction)
+            off = off_line_mm(self._df_line[0], res.entry_mm, res.direction)
             if off > p.axis_gate_mm:
                 found = False
                 reason = f"DF's axis passes {off:.1f} mm from the tracked needle's entry"
@@ -91,16 +86,15 @@ class DingFensterStep:
         if detecting:
             self._clear_track()
             self._theta_ref = res.theta_deg
-            self._tip_along_mm = x_tip
-            self._df_line = (np.asarray(res.entry_mm, float), np.asarray(res.direction, float))
             self._confirming = True
+        self._tip_along_mm = x_tip
+        self._df_line = (np.asarray(res.entry_mm, float), np.asarray(res.direction, float))
+        if detecting:
             return self._unconfirmed(frame, contrast, res.theta_deg, cover)
         confirmed_now, self._confirming = self._confirming, False
         self._df_reported = True
         self._df_departed = None  # a needle tracked again is the reference now
         self._df_mark.clear()
-        self._tip_along_mm = x_tip
-        self._df_line = (np.asarray(res.entry_mm, float), np.asarray(res.direction, float))
         return NeedleEstimate(
             t=frame.t, status=Status.TRACKING, tip_mm=np.asarray(res.tip_mm, float),
             direction=np.asarray(res.direction, float),
@@ -117,7 +111,7 @@ class DingFensterStep:
         if self._df_departed is None:
             return True
         entry, direction = self._df_departed
-        if _off_axis_mm(entry, res.entry_mm, res.direction) <= self.params.axis_gate_mm:
+        if off_line_mm(entry, res.entry_mm, res.direction) <= self.params.axis_gate_mm:
             return True
         seg = NeedleLine(True, "", np.asarray(res.entry_mm, float),
                          np.asarray(res.tip_mm, float), np.asarray(res.direction, float))

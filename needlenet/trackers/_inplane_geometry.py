@@ -15,14 +15,21 @@ __all__ = ["on_line", "entry_to_tip", "sample_grid", "imaged_region", "distance_
            "AROUND"]
 
 
+def off_line_mm(point: np.ndarray, line_point: np.ndarray, direction: np.ndarray) -> float:
+    """Distance (mm) of ``point`` from the line through ``line_point`` along the unit
+    ``direction``."""
+    d = np.asarray(point, float) - np.asarray(line_point, float)
+    return float(abs(d[0] * direction[1] - d[1] * direction[0]))
+
+
 def on_line(seg: NeedleLine, point: np.ndarray, direction: np.ndarray, window_deg: float,
              window_mm: float) -> bool:
     """Whether ``seg`` runs within ``window_deg`` of the line (``point``, ``direction``) with
     its midpoint within ``window_mm`` of it."""
     cos = abs(float(seg.direction @ direction))
-    n = np.array([-direction[1], direction[0]])
     mid = 0.5 * (seg.start_mm + seg.end_mm)
-    return cos >= np.cos(np.deg2rad(window_deg)) and abs(float((mid - point) @ n)) <= window_mm
+    return cos >= np.cos(np.deg2rad(window_deg)) and off_line_mm(mid, point, direction) <= \
+        window_mm
 
 
 def entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float,
