@@ -4,7 +4,8 @@ needle segmentation (Med. Phys. 30(8), 2003) as Mathiassen et al. implemented it
 1. Segment the image by a threshold (:func:`segment`).
 2. Hough transform of the segmented pixels with a coarse-fine search over the angle, limited to
    +-5 degrees of the expected insertion angle; the axis with the highest Hough value wins
-   (:func:`hough_axis`, with :func:`skimage.transform.hough_line`).
+   (:func:`hough_axis`, with :func:`skimage.transform.hough_line`), placed in the middle of
+   the segmented band (:func:`peak_centre`).
 3. Read the segmented image along that axis from the entry, close its gaps with a morphological
    close of a 21 px structuring element, and put the tip at the first gap
    (:func:`first_gap_tip`).
@@ -24,7 +25,8 @@ from skimage.transform import hough_line
 
 from synth import Grid
 
-__all__ = ["DFParams", "DFResult", "segment", "hough_axis", "first_gap_tip", "ding_fenster"]
+__all__ = ["DFParams", "DFResult", "segment", "hough_axis", "peak_centre", "first_gap_tip",
+           "ding_fenster"]
 
 
 @dataclass(frozen=True)
@@ -114,7 +116,28 @@ def hough_axis(mask: np.ndarray, grid: Grid, thetas_deg) -> tuple[float, float, 
     thetas = np.atleast_1d(np.asarray(thetas_deg, dtype=float))
     acc, _, dists = hough_line(mask, theta=_normal_angles(thetas, grid))
     i, j = np.unravel_index(int(np.argmax(acc)), acc.shape)
-    return float(thetas[j]), float(dists[i]), int(acc[i, j])
+    return float(thetas[j]), peak_centre(acc[:, j], dists), int(acc[i, j])
+
+
+def peak_centre(votes: np.ndarray, dists: np.ndarray) -> float:
+    """The axis of a segmented band: every line through a band several pixels thick and
+    parallel to it gets about the same vote, so the accumulator's maximum is a plateau across
+    rho, and its first bin is the band's edge. The centre of the plateau is taken: the
+    vote-weighted mean rho of the run above half the maximum that holds it, read on the votes
+    summed over pairs of neighbouring bins (a digital line's pixels alternate between
+    neighbouring rho bins)."""
+    v = np.asarray(votes, dtype=float)
+    smooth = np.convolve(v, np.ones(2), mode="same")
+    k = int(np.argmax(smooth))
+    above = smooth >= 0.5 * smooth[k]
+    lo, hi = k, k
+    while lo > 0 and above[lo - 1]:
+        lo -= 1
+    while hi < v.size - 1 and above[hi + 1]:
+        hi += 1
+    lo = max(lo - 1, 0)  # smooth[i] sums bins i - 1 and i
+    w = v[lo:hi + 1]
+    return float((w * dists[lo:hi + 1]).sum() / w.sum()) if w.sum() > 0 else float(dists[k])
 
 
 def _line_samples(grid: Grid, theta_deg: float, rho: float) -> tuple[np.ndarray, np.ndarray]:

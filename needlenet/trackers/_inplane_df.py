@@ -1,6 +1,9 @@
 """Mathiassen 2017's method 1, DF (Ding and Fenster's Hough detector, section III-C), as a step
 of :class:`InplaneTracker`: every frame is searched within +-5 degrees of the tracked angle
-and the tip put at the first gap along the axis.
+and the tip put at the first gap along the axis. The reported axis is the segmented echo's
+moved to the needle's centre line by the offset the other methods use for the same feature
+source; with learned features the tip map places the tip near the first gap
+(:meth:`DingFensterStep._tip_on_map`).
 
 A per-frame detector holds no track, so two rules of ours give it one, both from what an
 insertion can do between frames:
@@ -16,6 +19,8 @@ insertion can do between frames:
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -52,6 +57,9 @@ class DingFensterStep:
                                 np.zeros(1))
             x_tip = float((res.tip_mm - anchor) @ vn)
             feats, h = self._measure(image, previous, tip_map, grid, axis)
+            if tip_map is not None:
+                res = self._tip_on_map(res, feats.x_mm, h, x_tip, vn)
+                x_tip = float((res.tip_mm - anchor) @ vn)
             first = float((res.entry_mm - anchor) @ vn)
             contrast = feats.shaft_contrast(max(first, axis.rays_mm[0]), x_tip)
             # the echo is judged from the ROI's corner, where the needle enters, to the tip
@@ -95,15 +103,30 @@ class DingFensterStep:
         self._df_reported = True
         self._df_departed = None  # a needle tracked again is the reference now
         self._df_mark.clear()
+        # the segmented echo lies on the wall facing the probe: the centre line is the same
+        # offset along v_p away as for the other methods on this feature source
+        to_centre = self._offset_mm(tip_map) * axis_vectors(res.theta_deg)[1]
         return NeedleEstimate(
-            t=frame.t, status=Status.TRACKING, tip_mm=np.asarray(res.tip_mm, float),
+            t=frame.t, status=Status.TRACKING, tip_mm=np.asarray(res.tip_mm, float) + to_centre,
             direction=np.asarray(res.direction, float),
             covariance=self._covariance(res.theta_deg, float(MathiassenTipParams().r_min_px2),
                                         1.0 / 12.0 * (grid.spacing_mm[0] ** 2),
                                         p.angle.r_theta_deg2, x_tip - first),
-            axis_point_mm=np.asarray(res.entry_mm, float),
+            axis_point_mm=np.asarray(res.entry_mm, float) + to_centre,
             details=InplaneDetails(contrast, theta_deg=res.theta_deg, hough_votes=res.votes,
                                    echo_coverage=cover, detected=confirmed_now))
+
+    def _tip_on_map(self, res, x_mm: np.ndarray, h: np.ndarray, x_tip: float, vn) -> object:
+        """With learned features the segmented image is the shaft map, which runs on past the
+        needle by the network's blur; the tip map marks where the shaft ends. The tip is put
+        at the tip map's maximum along the axis within one closing length (``df.close_mm``,
+        the gap DF itself bridges) of the first gap."""
+        near = np.abs(x_mm - x_tip) <= self.params.df.close_mm
+        if not near.any() or not np.isfinite(h[near]).any():
+            return res
+        i = np.flatnonzero(near)[int(np.nanargmax(h[near]))]
+        tip = np.asarray(res.tip_mm, float) + (float(x_mm[i]) - x_tip) * np.asarray(vn, float)
+        return dataclasses.replace(res, tip_mm=tip)
 
     def _df_taken(self, res) -> bool:
         """Whether a detection ``res`` may start a track: always, unless a reported needle

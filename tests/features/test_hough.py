@@ -10,6 +10,7 @@ from needlenet.features._hough import (
     ding_fenster,
     first_gap_tip,
     hough_axis,
+    peak_centre,
     segment,
 )
 from synth import Grid
@@ -50,6 +51,35 @@ def test_hough_axis_uses_the_insertion_angle_convention():
     theta, _, votes = hough_axis(mask, GRID, np.arange(25.0, 35.01, 0.1))
     assert theta == pytest.approx(30.0, abs=0.2)
     assert votes > 200
+
+
+def test_hough_axis_runs_along_the_middle_of_a_thick_band():
+    # every line through a band parallel to it gets about the same vote: the axis is the
+    # band's middle, not the first maximal bin at its edge
+    mask = np.zeros(GRID.shape, bool)
+    rows, cols = np.mgrid[0:GRID.shape[0], 0:GRID.shape[1]]
+    t = np.deg2rad(40.0)
+    d = np.array([-np.cos(t), np.sin(t)])  # (col, row) down-left
+    n = np.array([d[1], -d[0]])
+    foot = np.array([300.0, 20.0])
+    across = (cols - foot[0]) * n[0] + (rows - foot[1]) * n[1]
+    along = (cols - foot[0]) * d[0] + (rows - foot[1]) * d[1]
+    mask[(np.abs(across) <= 7.0) & (along >= 0) & (along <= 250)] = True  # 15 px thick
+    theta, rho, _ = hough_axis(mask, GRID, [40.0])
+    assert theta == 40.0
+    from needlenet.features._hough import _line_samples
+
+    pts, _ = _line_samples(GRID, theta, rho)
+    off = (pts[:, 0] - foot[0]) * n[0] + (pts[:, 1] - foot[1]) * n[1]
+    assert np.abs(off).max() < 1.0
+
+
+def test_peak_centre_is_the_middle_of_the_half_maximum_run():
+    dists = np.arange(20.0)
+    votes = np.zeros(20)
+    votes[5:12] = [10, 100, 50, 100, 50, 100, 10]  # alternating bins of a digital line
+    votes[16] = 90  # another line, apart from the peak's run
+    assert peak_centre(votes, dists) == pytest.approx(8.0)
 
 
 def test_first_gap_tip_closes_small_gaps():

@@ -123,7 +123,7 @@ def test_lost_when_the_needle_leaves_and_found_when_it_returns(comeback, method)
     assert all(s == Status.TRACKING for s in status[17:])
     err = [np.linalg.norm(e.tip_mm - needle.tip_mm[i])
            for e, (_, i) in zip(out[-5:], order[-5:], strict=True)]
-    assert max(err) < (1.5 if method == "df" else 1.0)
+    assert max(err) < 1.0
 
 
 def test_constant_and_nan_frames_never_raise(sequences):
@@ -212,7 +212,7 @@ def test_a_needle_from_the_left_is_tracked_on_mirrored_frames(sequences, method)
     right_est = InplaneTracker(method, expected_angle_deg=35, rng=0).run(seq)
     left_est = InplaneTracker(method, expected_angle_deg=35, rng=0).run(left)
     err_r, err_l = _errors(right_est, seq), _errors(left_est, left)
-    assert np.median(err_l) < (1.5 if method == "df" else 1.0)
+    assert np.median(err_l) < 1.0
     # mirroring is exact: the same estimates, mirrored back into the frame's coordinates
     np.testing.assert_allclose(err_l, err_r, atol=1e-6)
     last = left_est[-1]
