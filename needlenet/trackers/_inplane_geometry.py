@@ -11,8 +11,8 @@ from ..backends import NeedleLine
 from ..features import Frame
 from ._margins import imaged_region
 
-__all__ = ["on_line", "entry_to_tip", "sample_grid", "imaged_region", "distance_to_edge",
-           "AROUND"]
+__all__ = ["on_line", "behind_on_line", "entry_to_tip", "sample_grid", "imaged_region",
+           "distance_to_edge", "AROUND"]
 
 
 def off_line_mm(point: np.ndarray, line_point: np.ndarray, direction: np.ndarray) -> float:
@@ -30,6 +30,19 @@ def on_line(seg: NeedleLine, point: np.ndarray, direction: np.ndarray, window_de
     mid = 0.5 * (seg.start_mm + seg.end_mm)
     return cos >= np.cos(np.deg2rad(window_deg)) and off_line_mm(mid, point, direction) <= \
         window_mm
+
+
+def behind_on_line(seg: NeedleLine, ref: NeedleLine, direction: np.ndarray,
+                   window_mm: float) -> bool:
+    """Whether both ends of ``seg`` lie within ``window_mm`` of ``ref``'s line and ``seg``
+    reaches no further along ``direction`` than ``ref`` does: a piece of the same straight
+    needle behind the end ``ref`` shows (its angle, from a short piece, is not compared)."""
+    d = np.asarray(direction, float)
+    ends = (seg.start_mm, seg.end_mm)
+    if max(off_line_mm(e, ref.start_mm, ref.direction) for e in ends) > window_mm:
+        return False
+    return max(float(e @ d) for e in ends) <= max(float(ref.start_mm @ d),
+                                                  float(ref.end_mm @ d)) + window_mm
 
 
 def entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float,

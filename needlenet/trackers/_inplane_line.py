@@ -69,7 +69,13 @@ from ..backends import (
 from ..features import FeatureSource, Frame, line_contrast
 from ._base import NeedleEstimate, Status, Tracker
 from ._details import LineDetails
-from ._inplane_geometry import AROUND, distance_to_edge, entry_to_tip, on_line
+from ._inplane_geometry import (
+    AROUND,
+    behind_on_line,
+    distance_to_edge,
+    entry_to_tip,
+    on_line,
+)
 from ._inplane_growing import GrowingMark
 from ._inplane_line_confirmed import ConfirmedTrack
 from ._inplane_line_echo import echo_along
@@ -424,7 +430,8 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
         holds no needle) the whole frame as well: a clearly stronger segment elsewhere
         (``switch_ratio`` times the evidence) takes over, so that a track started on a
         needle-like tissue line does not hold out against the needle; so does a segment of
-        higher priority (one that enters through the edge of the view)."""
+        higher priority (one that enters through the edge of the view), unless it lies on the
+        window's line behind its end: the same needle, whose map is split in two."""
         p = self.params
         level = self._level()
 
@@ -453,7 +460,8 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
             return near, False
         self._since_full = 0
         other = full()
-        if self._is_needle(near) and not (self._is_needle(other) and (
+        if self._is_needle(near) and not (self._is_needle(other) and not behind_on_line(
+                other, near, self._dir, p.track_window_mm) and (
                 priority(other) > priority(near) or (priority(other) == priority(near) and
                                                      other.score > p.switch_ratio * near.score))):
             return near, False
