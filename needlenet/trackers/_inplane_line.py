@@ -45,6 +45,7 @@ Status. ``tracking`` only on a frame that shows the needle: a frame whose search
 needle segment reports ``lost`` (or ``searching`` before any detection) with no tip. The
 filter is kept for ``forget_after_frames`` such frames, so the tip is picked up again at the
 prediction when the needle reappears; after that the tracker searches the whole frame anew.
+The covariance is the filter's; where its gate refuses the frame's tip it covers that tip too.
 
 Mathiassen 2017's methods (``om``, ``kf+f``, ...) stay in :mod:`._inplane`, with the paper's
 entry corner and 20-70 degree search; this tracker makes none of those assumptions.
@@ -583,9 +584,11 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
             normal = -normal
         entry = seg.start_mm + self._offset_mm() * normal
         tip = self._x[:2].copy()
+        # a measurement the gate refused: the image puts the tip elsewhere, by this much
+        off = np.zeros(2) if accepted is not False or restarted else measured_mm - tip
         return NeedleEstimate(
             t=frame.t, status=Status.TRACKING, tip_mm=tip, direction=seg.direction.copy(),
-            covariance=self._P[:2, :2].copy(), axis_point_mm=entry,
+            covariance=self._P[:2, :2] + np.outer(off, off), axis_point_mm=entry,
             details=LineDetails(
                 entry_mm=entry,
                 theta_deg=float(np.degrees(np.arctan2(seg.direction[1], abs(seg.direction[0])))),
