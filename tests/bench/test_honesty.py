@@ -76,4 +76,8 @@ def test_demo_tier(tmp_path):
     line = by[("line", "learned")]
     assert line["false_tracking"] == 0 and line["reacquired"] == 1
     assert line["reacquire_frames"][0] < REACQUIRE_FRAMES
+    # DF on the learned maps: its axis on the needle's centre line, its tip at the tip map's
+    # peak, so the returning needle's tip is within 2 mm on DF's first reported frame
+    df = by[("df", "learned")]
+    assert df["false_tracking"] == 0 and df["reacquire_frames"][0] <= 1
     assert "needle-free `tracking`" in res["markdown"]
