@@ -45,7 +45,7 @@ Status. ``tracking`` only on a frame that shows the needle: a frame whose search
 needle segment reports ``lost`` (or ``searching`` before any detection) with no tip. The
 filter is kept for ``forget_after_frames`` such frames, so the tip is picked up again at the
 prediction when the needle reappears; after that the tracker searches the whole frame anew.
-The covariance is the filter's; where its gate refuses the frame's tip it covers that tip too.
+The covariance is the filter's actual error covariance (:mod:`._inplane_line_filter`).
 
 Mathiassen 2017's methods (``om``, ``kf+f``, ...) stay in :mod:`._inplane`, with the paper's
 entry corner and 20-70 degree search; this tracker makes none of those assumptions.
@@ -63,8 +63,6 @@ from ..backends import (
     WorkingMap,
     chi2_gate,
     find_needle_line,
-    predict,
-    update,
     working_map,
 )
 from ..features import FeatureSource, Frame, line_contrast
@@ -80,6 +78,7 @@ from ._inplane_geometry import (
 from ._inplane_growing import GrowingMark
 from ._inplane_line_confirmed import ConfirmedTrack
 from ._inplane_line_echo import echo_along
+from ._inplane_line_filter import TipKalman
 from ._inplane_line_params import LineTrackerParams
 from ._inplane_line_tip import LineTip
 from ._inplane_still import StillLines
@@ -87,7 +86,7 @@ from ._margins import inner_region
 
 __all__ = ["LineTrackerParams", "LineTracker"]
 
-class LineTracker(LineTip, ConfirmedTrack, Tracker):
+class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
     """Whole-frame needle line search with a Kalman filter on the tip (the default in-plane
     tracker; see the module's doc).
 
@@ -350,12 +349,6 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
         end = seg.end_mm if float(seg.direction @ self._dir) >= 0 else seg.start_mm
         return self._gate_distance(end) <= chi2_gate(2, self.params.gate_probability)
 
-    def _gate_distance(self, z: np.ndarray) -> float:
-        """Mahalanobis distance of tip measurement ``z`` from the filter's prediction."""
-        y = z - self._x[:2]
-        S = self._P[:2, :2] + np.eye(2) * self.params.measurement_std_mm ** 2
-        return float(np.sqrt(y @ np.linalg.solve(S, y)))
-
     # ------------------------------------------------------------------ one frame
 
     def _step(self, frame: Frame) -> NeedleEstimate:
@@ -368,7 +361,7 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
         inner = self._inner_region(frame)
         wm = self._evidence(lik.shaft, map_grid, inner)
         if self._x is not None:
-            self._x, self._P = predict(self._x, self._P, *self._motion(dt))
+            self._predict_tip(dt)
         is_valid, priority, looks, runs_out, shares_entry = self._validity(frame, inner)
         seg, new_line = self._search(wm, is_valid, priority, runs_out, shares_entry)
         if self._is_needle(seg):
@@ -410,17 +403,6 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
             self._still.observe(wm, self._level(), self.params.search, self._line_point,
                                 self._dir, self._x[:2], looks)
         return est
-
-    def _motion(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Constant velocity in (x, z) with white acceleration noise (F, Q)."""
-        F = np.eye(4)
-        F[0, 2] = F[1, 3] = dt
-        q = self.params.accel_std_mm_s2 ** 2
-        blk = q * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
-        Q = np.zeros((4, 4))
-        Q[np.ix_([0, 2], [0, 2])] = blk
-        Q[np.ix_([1, 3], [1, 3])] = blk
-        return F, Q
 
     def _search(self, wm: WorkingMap, is_valid, priority, runs_out,
                 shares_entry) -> tuple[NeedleLine, bool]:
@@ -538,38 +520,6 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
             return seg if float(seg.direction @ self._dir) >= 0 else seg.reversed()
         return entry_to_tip(seg, frame, self.params.orientation_min_angle_deg, valid)
 
-    # ------------------------------------------------------------------ the tip's filter
-
-    def _filter(self, z: np.ndarray) -> tuple[bool | None, bool]:
-        """Update the filter with tip measurement ``z``: whether the gate accepted it (None
-        when the filter starts at it) and whether the filter restarted at it."""
-        p = self.params
-        H = np.hstack([np.eye(2), np.zeros((2, 2))])
-        R = np.eye(2) * p.measurement_std_mm ** 2
-        if self._x is None:
-            self._start(z)
-            return None, False
-        if self._gate_distance(z) > chi2_gate(2, p.gate_probability):
-            self._accepted_run = 0
-            self._rejects += 1
-            if self._rejects >= p.reinit_after_rejects:
-                self._start(z)
-                return False, True
-            return False, False
-        self._rejects = 0
-        self._accepted_run += 1
-        self._held_confirmed = self._held_confirmed or self._confirmed
-        res = update(self._x, self._P, z, R, H)
-        self._x, self._P = res.x, res.P
-        return True, False
-
-    def _start(self, z: np.ndarray) -> None:
-        p = self.params
-        self._x = np.array([z[0], z[1], 0.0, 0.0])
-        self._P = np.diag([p.measurement_std_mm ** 2] * 2 + [p.initial_speed_std_mm_s ** 2] * 2)
-        self._rejects = 0
-        self._accepted_run = 0
-
     def _estimate(self, frame: Frame, seg: NeedleLine, measured_mm: np.ndarray,
                   used_tip_map: bool, accepted: bool | None, restarted: bool,
                   at_echo_end: bool) -> NeedleEstimate:
@@ -584,11 +534,10 @@ class LineTracker(LineTip, ConfirmedTrack, Tracker):
             normal = -normal
         entry = seg.start_mm + self._offset_mm() * normal
         tip = self._x[:2].copy()
-        # a measurement the gate refused: the image puts the tip elsewhere, by this much
-        off = np.zeros(2) if accepted is not False or restarted else measured_mm - tip
         return NeedleEstimate(
             t=frame.t, status=Status.TRACKING, tip_mm=tip, direction=seg.direction.copy(),
-            covariance=self._P[:2, :2] + np.outer(off, off), axis_point_mm=entry,
+            covariance=self._reported_covariance(measured_mm, accepted, restarted),
+            axis_point_mm=entry,
             details=LineDetails(
                 entry_mm=entry,
                 theta_deg=float(np.degrees(np.arctan2(seg.direction[1], abs(seg.direction[0])))),

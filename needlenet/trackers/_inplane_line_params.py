@@ -43,10 +43,13 @@ class LineTrackerParams:
     of a second); ``measurement_std_mm``: the tip measurement's noise; ``initial_speed_std_mm_s``:
     the speed's prior spread. ``gate_probability``: the chi-square gate of a tip measurement;
     ``reinit_after_rejects``: gated-out measurements in a row after which the filter restarts
-    at the image's tip; ``confirm_after_frames``: measurements accepted in a row after which
-    the track is confirmed (M-of-N track confirmation): a confirmed needle is not replaced by a
-    line from its entry longer than it could have grown (see the tracker's doc), an unconfirmed
-    first mark may be, its length along a guessed direction being no measure of the needle's.
+    at the image's tip; ``noise_window_frames``: the accepted measurements whose innovations
+    estimate the tip measurements' noise for the reported covariance (half a second at 20
+    frames/s; :mod:`._inplane_line_filter`); ``confirm_after_frames``: measurements accepted
+    in a row after which the track is confirmed (M-of-N track confirmation): a confirmed
+    needle is not replaced by a line from its entry longer than it could have grown (see the
+    tracker's doc), an unconfirmed first mark may be, its length along a guessed direction
+    being no measure of the needle's.
     ``forget_after_frames``: frames without a needle after which the track
     is forgotten. ``needle_radius_mm``: maps that mark the wall facing the probe (learned
     ``target_reference = "wall"`` and the classical echo) are moved by it to the centre line
@@ -91,6 +94,7 @@ class LineTrackerParams:
     initial_speed_std_mm_s: float = 20.0
     gate_probability: float = 0.997
     reinit_after_rejects: int = 3
+    noise_window_frames: int = 10
     confirm_after_frames: int = 3
     forget_after_frames: int = 5
     needle_radius_mm: float = 0.635
@@ -115,6 +119,9 @@ class LineTrackerParams:
                self.full_search_every_frames) < 1:
             raise ValueError("reinit_after_rejects, confirm_after_frames, forget_after_frames "
                              "and full_search_every_frames must be >= 1")
+        if not 2 <= self.noise_window_frames <= 10_000:
+            raise ValueError(f"noise_window_frames must lie in [2, 10000], got "
+                             f"{self.noise_window_frames}")
         if not self.needle_radius_mm >= 0:
             raise ValueError(f"needle_radius_mm must be >= 0, got {self.needle_radius_mm}")
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:

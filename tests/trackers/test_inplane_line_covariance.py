@@ -35,3 +35,49 @@ def test_a_refused_measurement_lies_inside_the_reported_covariance():
     accepted = [e for e in est if e.details is not None and e.details.measurement_accepted]
     # an accepted measurement: the filter's own covariance, a fraction of a millimetre
     assert accepted and all(np.sqrt(np.trace(e.covariance)) < 1.0 for e in accepted)
+
+
+def _constant_velocity_run(sigma_mm: float, seed: int, steps: int = 40, dt: float = 0.05):
+    """The tip filter alone on a tip moving at 25 mm/s, measured with noise ``sigma_mm``:
+    (final error, reported covariance, the nominal filter's covariance, last accepted)."""
+    from needlenet.trackers._inplane_line import LineTracker
+
+    rng = np.random.default_rng(seed)
+    tr = LineTracker()
+    start, v = np.array([10.0, 5.0]), np.array([-20.0, 15.0])
+    for k in range(steps):
+        truth = start + v * dt * k
+        z = truth + sigma_mm * rng.standard_normal(2)
+        if tr._x is not None:
+            tr._predict_tip(dt)
+        accepted, restarted = tr._filter(z)
+    return (tr._x[:2] - truth, tr._reported_covariance(z, accepted, restarted),
+            tr._P[:2, :2].copy(), accepted)
+
+
+def test_the_reported_covariance_follows_measurements_noisier_than_assumed():
+    # measurements 1.5 times noisier than the filter's 0.3 mm: the nominal covariance is too
+    # small, the reported one (noise by covariance matching, through the nominal gain) is not
+    runs = [_constant_velocity_run(0.45, seed) for seed in range(400)]
+    runs = [r for r in runs if r[3] is True]  # the last measurement accepted by the gate
+    assert len(runs) > 350
+    err = np.array([r[0] for r in runs])
+    empirical = float(np.trace(np.cov(err.T)))
+    reported = float(np.mean([np.trace(r[1]) for r in runs]))
+    nominal = float(np.mean([np.trace(r[2]) for r in runs]))
+    assert reported == pytest.approx(empirical, rel=0.2)
+    assert nominal < 0.6 * empirical
+
+    def inside(k):
+        return np.mean([e @ np.linalg.solve(r[k], e) <= 5.991 for e, r in zip(err, runs,
+                                                                             strict=True)])
+
+    assert inside(1) > 0.87 and inside(1) > inside(2) + 0.05
+
+
+def test_the_reported_covariance_stays_the_filters_at_the_assumed_noise():
+    runs = [_constant_velocity_run(0.3, seed) for seed in range(200)]
+    reported = np.mean([np.trace(r[1]) for r in runs])
+    nominal = np.mean([np.trace(r[2]) for r in runs])
+    assert reported == pytest.approx(nominal, rel=0.25)
+    assert reported >= nominal  # floored at the assumed noise
