@@ -71,9 +71,9 @@ Where the paper leaves things open, or where we depart from it (each is a field 
 
 The paper's filter barely learns R (see :class:`~needlenet.backends._bicycle.
 CarriereParticleFilter`): the per-point arg-min of steps 4-5 is dominated by theta_0.
-``filter_update="lsq"`` keeps steps 1-9 but then moves the particle cloud (translating it,
-spread unchanged) onto the maximum a posteriori least-squares fit of (theta_0, 1/R) to all
-observed points, with the paper's prior as a Gaussian prior; the default ``"paper"`` is the
+``filter_update="lsq"`` (the default) keeps steps 1-9 but then moves the particle cloud
+(translating it, spread unchanged) onto the maximum a posteriori least-squares fit of
+(theta_0, 1/R) to all observed points, the paper's prior a Gaussian prior; ``"paper"`` is the
 paper's filter alone. In the simulator (128 x 128, 0.5 mm slices, prediction at 100 mm from
 D = 60 or 80 mm) the paper's filter predicts the tip within 0.05-0.16 mm for radii near its
 prior mean of 1500 mm but 1.1-1.5 mm for R = 800 mm (its R stays near 1500 mm); "lsq"

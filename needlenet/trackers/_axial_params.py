@@ -71,7 +71,10 @@ class AxialParams:
     # inference's and the network's input shrinks to ~80 x 80 px (docs/notes/axial.md).
     # False: the whole slice every time.
     learned_roi: bool = True
-    filter_update: str = "paper"  # "paper" (steps 1-10) or "lsq" (+ MAP least squares)
+    # "lsq": steps 1-9, then the cloud moved onto the MAP least-squares fit of (theta_0, 1/R)
+    # under the paper's prior (the default: it predicts the tip best on synth's sequences and
+    # on PyMUST's validation slices, docs/notes/axial.md); "paper": steps 1-10 alone
+    filter_update: str = "lsq"
     measurement_sd_mm: float = 0.1  # "lsq": sd of a centre, for the least-squares fit
     pf: CarriereParams = field(default_factory=CarriereParams)  # n, p, c, priors, gamma
 
