@@ -24,7 +24,8 @@ def add_parser(sub) -> None:
                         "om+f kf kf+f pf pf+f kfv kfv+f pfv pfv+f (Mathiassen 2017); volume: "
                         "roi-rk (default) ransac chatelain; axial: carriere")
     p.add_argument("--features", choices=["classical", "learned"],
-                   help="default: learned (the shipped model)")
+                   help="default: learned (the shipped model) in-plane and axial, classical "
+                        "for volumes: what tracks best on images needlenet did not make")
     p.add_argument("--angle", type=float, metavar="DEG",
                    help="inplane: the insertion angle to the skin when known (0-90); the "
                         "search then keeps near it")
@@ -160,7 +161,8 @@ def _check_method(args) -> None:
     from ..trackers import DEFAULT_FEATURES, DEFAULT_METHODS, tracker_methods
 
     args.method = args.method or DEFAULT_METHODS[args.tracker]
-    args.features = args.features or DEFAULT_FEATURES
+    # a model given is a learned source
+    args.features = args.features or ("learned" if args.model else DEFAULT_FEATURES[args.tracker])
     if args.method not in tracker_methods(args.tracker):
         raise CLIError(f"track: tracker {args.tracker!r} has no method {args.method!r}; "
                        f"choose one of {', '.join(tracker_methods(args.tracker))}")

@@ -22,9 +22,13 @@ METHOD_TRACKERS = {
     ("inplane", "line"): ("needlenet.trackers._inplane_line", "LineTracker"),
 }
 # what ``needlenet track FILE`` runs when no method or features are given: the whole-frame
-# in-plane search (no entry side or angle assumed), and learned features
+# in-plane search (no entry side or angle assumed), Zhao's ROI-RK, Carriere's tracker
 DEFAULT_METHODS = {"inplane": "line", "volume": "roi-rk", "axial": "carriere"}
-DEFAULT_FEATURES = "learned"
+# the features each modality's default runs: those that track best on the PyMUST validation
+# sets (images needlenet did not make; docs/results.md, External): learned in-plane and axial,
+# classical for volumes (ROI-RK's classical start tests refuse tissue the learned 3D map rates
+# as needle)
+DEFAULT_FEATURES = {"inplane": "learned", "volume": "classical", "axial": "learned"}
 FEATURE_KINDS = ("classical", "learned")
 # each tracker class's parameter dataclass, in the tracker's module
 PARAMS = {"InplaneTracker": "InplaneParams", "VolumeTracker": "VolumeTrackerParams",

@@ -221,6 +221,20 @@ def test_track_without_options_runs_the_default_tracker(tmp_path, capsys):
     assert (out["tracker"], out["method"], out["features"]) == ("inplane", "line", "learned")
 
 
+def test_a_volume_without_options_runs_roi_rk_on_classical_features(tmp_path, capsys):
+    # the features that track best on the PyMUST volume validation set; a model given is learned
+    f = synth.save_sequence(synth.generate("volume", seed=14, background="homogeneous",
+                                           frames=2, output_size=56, cr=4.7),
+                            tmp_path / "v.npz")
+    assert main(["track", str(f), "--quiet"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert (out["tracker"], out["method"], out["features"]) == ("volume", "roi-rk", "classical")
+    from needlenet.features import shipped_model_path
+
+    assert main(["track", str(f), "--quiet", "--model", str(shipped_model_path("volume"))]) == 0
+    assert json.loads(capsys.readouterr().out)["features"] == "learned"
+
+
 @pytest.mark.parametrize("args,msg", [(["--angle", "120"], "0 to 90 degrees"),
                                       (["--tracker", "volume", "--angle", "30"],
                                        "--angle is for the inplane tracker"),
