@@ -129,12 +129,9 @@ def peak_centre(votes: np.ndarray, dists: np.ndarray) -> float:
     v = np.asarray(votes, dtype=float)
     smooth = np.convolve(v, np.ones(2), mode="same")
     k = int(np.argmax(smooth))
-    above = smooth >= 0.5 * smooth[k]
-    lo, hi = k, k
-    while lo > 0 and above[lo - 1]:
-        lo -= 1
-    while hi < v.size - 1 and above[hi + 1]:
-        hi += 1
+    below = np.flatnonzero(smooth < 0.5 * smooth[k])
+    lo = int(below[below < k].max()) + 1 if np.any(below < k) else 0
+    hi = int(below[below > k].min()) - 1 if np.any(below > k) else v.size - 1
     lo = max(lo - 1, 0)  # smooth[i] sums bins i - 1 and i
     w = v[lo:hi + 1]
     return float((w * dists[lo:hi + 1]).sum() / w.sum()) if w.sum() > 0 else float(dists[k])

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..backends import MathiassenTipParams, NeedleLine
 from ..features import AxisEstimate, axis_vectors, ding_fenster, roi_anchor_mm
+from ..features._hough import DFResult
 from ._base import NeedleEstimate, Status
 from ._details import InplaneDetails
 from ._inplane_geometry import off_line_mm
@@ -116,7 +117,8 @@ class DingFensterStep:
             details=InplaneDetails(contrast, theta_deg=res.theta_deg, hough_votes=res.votes,
                                    echo_coverage=cover, detected=confirmed_now))
 
-    def _tip_on_map(self, res, x_mm: np.ndarray, h: np.ndarray, x_tip: float, vn) -> object:
+    def _tip_on_map(self, res: DFResult, x_mm: np.ndarray, h: np.ndarray, x_tip: float,
+                    vn) -> DFResult:
         """With learned features the segmented image is the shaft map, which runs on past the
         needle by the network's blur; the tip map marks where the shaft ends. The tip is put
         at the tip map's maximum along the axis within one closing length (``df.close_mm``,

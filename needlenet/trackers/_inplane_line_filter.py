@@ -70,14 +70,11 @@ class TipKalman:
         self._rejects = 0
         self._accepted_run += 1
         self._held_confirmed = self._held_confirmed or self._confirmed
-        R = self._nominal_R()
-        y = z - self._x[:2]
-        self._innovations.append((np.outer(y, y), self._P_actual[:2, :2].copy()))
+        res = update(self._x, self._P, z, self._nominal_R(), _H)
+        self._innovations.append((np.outer(res.y, res.y), self._P_actual[:2, :2].copy()))
         del self._innovations[:-p.noise_window_frames]
-        K = self._P @ _H.T @ np.linalg.inv(_H @ self._P @ _H.T + R)
-        J = np.eye(4) - K @ _H
-        self._P_actual = J @ self._P_actual @ J.T + K @ self._measurement_noise() @ K.T
-        res = update(self._x, self._P, z, R, _H)
+        J = np.eye(4) - res.K @ _H  # the nominal gain, applied to the actual errors
+        self._P_actual = J @ self._P_actual @ J.T + res.K @ self._measurement_noise() @ res.K.T
         self._x, self._P = res.x, res.P
         return True, False
 
