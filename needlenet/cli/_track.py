@@ -161,6 +161,9 @@ def _check_method(args) -> None:
     from ..trackers import DEFAULT_FEATURES, DEFAULT_METHODS, tracker_methods
 
     args.method = args.method or DEFAULT_METHODS[args.tracker]
+    if args.model and args.features == "classical":
+        raise CLIError("track: --model gives learned features; it does not go with --features "
+                       "classical (leave --features out, or give learned)")
     # a model given is a learned source
     args.features = args.features or ("learned" if args.model else DEFAULT_FEATURES[args.tracker])
     if args.method not in tracker_methods(args.tracker):

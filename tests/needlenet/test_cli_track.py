@@ -52,6 +52,7 @@ def test_wrong_modality_is_refused_before_the_run(inplane_file, capsys):
     (["--method", "nope"], "has no method 'nope'"),
     (["--method", "kf", "--model", "{d}/missing.onnx"], "does not exist"),
     (["--method", "kf", "--overlay", "{d}/x.png"], "use .gif, .mp4 or .avi"),
+    (["--features", "classical", "--model", "{d}/m.onnx"], "does not go with --features"),
 ])
 def test_bad_arguments(inplane_file, tmp_path, capsys, argv, msg):
     rc = main(["track", str(inplane_file), "--tracker", "inplane",
