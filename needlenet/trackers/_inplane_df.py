@@ -106,7 +106,7 @@ class DingFensterStep:
         self._df_mark.clear()
         # the segmented echo lies on the wall facing the probe: the centre line is the same
         # offset along v_p away as for the other methods on this feature source
-        to_centre = self._offset_mm(tip_map) * axis_vectors(res.theta_deg)[1]
+        to_centre = self._offset_mm(tip_map) * vp  # vp of this frame's axis (res is found)
         return NeedleEstimate(
             t=frame.t, status=Status.TRACKING, tip_mm=np.asarray(res.tip_mm, float) + to_centre,
             direction=np.asarray(res.direction, float),
