@@ -9,7 +9,11 @@ angle and no gauge given, with classical and with learned features. Per sequence
 - ``tracked_fraction``: needle frames reported ``tracking`` over needle frames;
 - ``false_tracking_fraction``: needle-free frames reported ``tracking`` over needle-free frames;
 - ``wrong_fraction``: needle frames reported ``tracking`` with the tip more than 3 mm off, over
-  needle frames (a confident wrong answer, worse than none).
+  needle frames (a confident wrong answer, worse than none);
+- ``covered_fraction``: of the needle frames reported ``tracking`` with a tip covariance, those
+  whose labelled tip lies inside the reported 95% region (Mahalanobis distance within the
+  chi-square 95% point of the tip's dimension): 95% when the reported uncertainty is honest,
+  less when it is overconfident.
 
 A needle frame has the needle visible (label ``visible``: the tip in the image with at least
 3 mm of shaft in view); a needle-free frame has no needle in it at all (tip label NaN). The set
@@ -65,21 +69,50 @@ def frame_classes(seq: synth.Sequence) -> tuple[np.ndarray, np.ndarray]:
 
 
 def sequence_metrics(tracking: np.ndarray, tip_est: np.ndarray, tip_true: np.ndarray,
-                     needle: np.ndarray, free: np.ndarray) -> dict:
+                     needle: np.ndarray, free: np.ndarray,
+                     tip_cov: np.ndarray | None = None) -> dict:
     """The suite's metrics of one sequence from per-frame arrays.
 
     ``tracking`` (T,) bool: the tracker reported ``tracking``; ``tip_est`` and ``tip_true``
-    (T, 2) mm (NaN where none); ``needle`` and ``free`` (T,) bool from :func:`frame_classes`.
-    Returns the counts and the per-frame tip errors as well, so sequences can be pooled.
+    (T, D) mm (NaN where none); ``needle`` and ``free`` (T,) bool from :func:`frame_classes`;
+    ``tip_cov`` (T, D, D) mm^2, the reported tip covariances (NaN where none). Returns the
+    counts and the per-frame tip errors as well, so sequences can be pooled.
     """
     tracking = np.asarray(tracking, bool)
     needle, free = np.asarray(needle, bool), np.asarray(free, bool)
     tip_est = np.asarray(tip_est, float)
+    tip_true = np.asarray(tip_true, float)
     # a needle frame counts as tracked when the tracker says so and gives a tip
     scored = needle & tracking & np.all(np.isfinite(tip_est), axis=1)
-    err = np.linalg.norm(tip_est[scored] - np.asarray(tip_true, float)[scored], axis=1)
+    err = np.linalg.norm(tip_est[scored] - tip_true[scored], axis=1)
+    n_cov = n_covered = 0
+    if tip_cov is not None:
+        n_cov, n_covered = _coverage(tip_est[scored] - tip_true[scored],
+                                     np.asarray(tip_cov, float)[scored])
     return _summary(err, int(needle.sum()), int(scored.sum()), int(free.sum()),
-                    int((free & tracking).sum()))
+                    int((free & tracking).sum()), n_covered, n_cov)
+
+
+# the probability of the reported region that covered_fraction tests
+COVERAGE_PROBABILITY = 0.95
+
+
+def _coverage(y: np.ndarray, cov: np.ndarray) -> tuple[int, int]:
+    """(frames with a usable covariance, those whose error ``y`` (N, D) lies inside the
+    ``COVERAGE_PROBABILITY`` region of its covariance (N, D, D)). A covariance that is not
+    finite or not positive definite is no region."""
+    from ..backends import chi2_gate
+
+    if not len(y):
+        return 0, 0
+    usable = np.all(np.isfinite(cov), axis=(1, 2))
+    usable[usable] &= np.all(np.linalg.eigvalsh(cov[usable]) > 0, axis=1)
+    if not usable.any():
+        return 0, 0
+    y, cov = y[usable], cov[usable]
+    d2 = np.einsum("ni,ni->n", y, np.linalg.solve(cov, y[..., None])[..., 0])
+    inside = np.sqrt(d2) <= chi2_gate(y.shape[1], COVERAGE_PROBABILITY)
+    return len(y), int(inside.sum())
 
 
 
@@ -93,7 +126,12 @@ def estimate_metrics(est: list, seq: synth.Sequence) -> tuple[np.ndarray, np.nda
                         else np.asarray(e.tip_mm, float) for e in est]).reshape(-1, nd)
     tip_true = np.full((seq.n_frames, nd), np.nan) if seq.tip_mm is None \
         else np.asarray(seq.tip_mm, float)
-    return tracking, tip_est, sequence_metrics(tracking, tip_est, tip_true, needle, free)
+    tip_cov = np.full((seq.n_frames, nd, nd), np.nan)
+    for i, e in enumerate(est):
+        if e.covariance is not None and np.shape(e.covariance) == (nd, nd):
+            tip_cov[i] = e.covariance
+    return tracking, tip_est, sequence_metrics(tracking, tip_est, tip_true, needle, free,
+                                               tip_cov)
 
 def pooled_metrics(per_sequence: list[dict]) -> dict:
     """The metrics over all frames of several sequences (errors and counts pooled)."""
@@ -101,7 +139,7 @@ def pooled_metrics(per_sequence: list[dict]) -> dict:
         if per_sequence else np.zeros(0)
     return _summary(err, *(int(sum(m[k] for m in per_sequence)) for k in
                            ("needle_frames", "tracked_frames", "needle_free_frames",
-                            "false_tracking_frames")))
+                            "false_tracking_frames", "covered_frames", "covariance_frames")))
 
 
 # the model-choice score (docs/notes/inplane.md): the share of needle frames tracked within
@@ -110,7 +148,7 @@ def pooled_metrics(per_sequence: list[dict]) -> dict:
 GOOD_MM = 3.0
 
 
-def _summary(err, n_needle, n_tracked, n_free, n_false) -> dict:
+def _summary(err, n_needle, n_tracked, n_free, n_false, n_covered=0, n_cov=0) -> dict:
     n_good = int(np.count_nonzero(err <= GOOD_MM))
     n_wrong = int(np.count_nonzero(err > GOOD_MM))
     score = None
@@ -125,6 +163,8 @@ def _summary(err, n_needle, n_tracked, n_free, n_false) -> dict:
         "wrong_fraction": n_wrong / n_needle if n_needle else None, "wrong_frames": n_wrong,
         "needle_frames": n_needle, "tracked_frames": n_tracked,
         "needle_free_frames": n_free, "false_tracking_frames": n_false,
+        "covered_fraction": n_covered / n_cov if n_cov else None,
+        "covered_frames": n_covered, "covariance_frames": n_cov,
         "tip_errors_mm": err.tolist(),
     }
 
@@ -199,7 +239,7 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
             log(f"  external {name:28s} {kind:9s} median {_fmt(row['tip_error_median_mm'])} "
                 f"p95 {_fmt(row['tip_error_p95_mm'])} mm, tracked "
                 f"{_fmt(row['tracked_fraction'])}, false {_fmt(row['false_tracking_fraction'])}"
-                f", wrong {_fmt(row['wrong_fraction'])}")
+                f", wrong {_fmt(row['wrong_fraction'])}, in 95% {_fmt(row['covered_fraction'])}")
         pm = pooled_metrics(per)
         row = {"suite": "external", "tracker": "inplane", "method": method, "features": kind,
                "model": model if kind == "learned" else None,
@@ -211,7 +251,7 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
         log(f"  external {'pooled':28s} {kind:9s} median {_fmt(row['tip_error_median_mm'])} "
             f"p95 {_fmt(row['tip_error_p95_mm'])} mm, tracked {_fmt(row['tracked_fraction'])}, "
             f"false {_fmt(row['false_tracking_fraction'])}, wrong {_fmt(row['wrong_fraction'])}, "
-            f"score {_fmt(row['score'], 3)}")
+            f"in 95% {_fmt(row['covered_fraction'])}, score {_fmt(row['score'], 3)}")
     return {"rows": rows, "traces": traces,
             "data": str(Path(directory) if directory is not None else data_dir())}
 
@@ -235,13 +275,14 @@ def markdown(result: dict, machine: dict) -> str:
              "needle-free frames reported `tracking`; wrong: needle frames reported `tracking` "
              f"more than {GOOD_MM:g} mm from the tip; score: needle frames tracked within "
              f"{GOOD_MM:g} mm of the tip over needle frames, less the false fraction (how models "
-             "are chosen, docs/notes/inplane.md).", "",
+             "are chosen, docs/notes/inplane.md); in 95%: tracked needle frames whose tip lies "
+             "inside the reported 95% region (95% when the reported uncertainty is honest).", "",
              "| sequence | probe | needle | features | median (mm) | 95th (mm) | tracked | "
-             "false | wrong | score |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "false | wrong | score | in 95% |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     lines += table_rows(result["rows"], lambda r: " ".join(
         v for v in (r["side"], None if r["angle_deg"] is None else f"{r['angle_deg']:g}°")
         if v) or "yes", lambda r: f"{_pct(r.get('wrong_fraction'))} | "
-                                  f"{_fmt(r.get('score'), 3)}")
+                                  f"{_fmt(r.get('score'), 3)} | {_pct(r.get('covered_fraction'))}")
     return "\n".join(lines)
 
 

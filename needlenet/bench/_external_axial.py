@@ -28,7 +28,14 @@ import numpy as np
 
 import synth
 
-from ._external import _fmt, estimate_metrics, frame_classes, pooled_metrics, table_rows
+from ._external import (
+    _fmt,
+    _pct,
+    estimate_metrics,
+    frame_classes,
+    pooled_metrics,
+    table_rows,
+)
 
 __all__ = ["PREDICT_AHEAD_MM", "axial_data_dir", "markdown_axial", "run_axial_set",
            "tip_prediction"]
@@ -100,7 +107,8 @@ def run_axial_set(seqs, seed: int, log, rows: list, model: str | None,
             log(f"  external {name:22s} {kind:9s} centre median "
                 f"{_fmt(row['tip_error_median_mm'])} p95 {_fmt(row['tip_error_p95_mm'])} mm, "
                 f"tracked {_fmt(row['tracked_fraction'])}, false "
-                f"{_fmt(row['false_tracking_fraction'])}, tip prediction "
+                f"{_fmt(row['false_tracking_fraction'])}, in 95% "
+                f"{_fmt(row['covered_fraction'])}, tip prediction "
                 f"{_fmt(pred['tip_prediction_error_mm'])} mm")
         pm = pooled_metrics(per)
         row = {"suite": "external", "tracker": "axial", "method": "carriere", "features": kind,
@@ -116,7 +124,7 @@ def run_axial_set(seqs, seed: int, log, rows: list, model: str | None,
         log(f"  external {'pooled':22s} {kind:9s} centre median "
             f"{_fmt(row['tip_error_median_mm'])} p95 {_fmt(row['tip_error_p95_mm'])} mm, "
             f"tracked {_fmt(row['tracked_fraction'])}, false "
-            f"{_fmt(row['false_tracking_fraction'])}")
+            f"{_fmt(row['false_tracking_fraction'])}, in 95% {_fmt(row['covered_fraction'])}")
     return {"rows": rows, "traces": traces}
 
 
@@ -127,9 +135,11 @@ def markdown_axial(result: dict, machine: dict) -> str:
              "needle slices reported `tracking`; tracked: needle slices reported `tracking`; "
              "false: needle-free slices (past the tip, or no needle) reported `tracking`; tip "
              f"prediction: |u - û| of the crossing in the last needle slice predicted "
-             f"{PREDICT_AHEAD_MM:g} mm before it (pooled: median over sequences).", "",
-             "| sequence | probe | needle | features | median (mm) | 95th (mm) | tracked | "
-             "false | tip prediction (mm) |", "|---|---|---|---|---|---|---|---|---|"]
+             f"{PREDICT_AHEAD_MM:g} mm before it (pooled: median over sequences); in 95%: "
+             "tracked needle slices whose labelled centre lies inside the reported 95% region.",
+             "", "| sequence | probe | needle | features | median (mm) | 95th (mm) | tracked | "
+             "false | tip prediction (mm) | in 95% |", "|---|---|---|---|---|---|---|---|---|---|"]
     lines += table_rows(result["rows"], lambda r: f"{r['gauge']} G, CR {r['target_cr']:g}",
-                        lambda r: _fmt(r.get("tip_prediction_error_mm")))
+                        lambda r: f"{_fmt(r.get('tip_prediction_error_mm'))} | "
+                                  f"{_pct(r.get('covered_fraction'))}")
     return "\n".join(lines)

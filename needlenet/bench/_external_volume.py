@@ -11,7 +11,8 @@ learned features. Per sequence and pooled:
 - ``score``: needle volumes tracked within 3 mm of the tip over needle volumes, less the false
   fraction (as the in-plane set's);
 - ``failure_rate``: Zhao 2013's, over the needle volumes: no estimate, or a tip or axis error
-  over 3 mm (:func:`needlenet.eval._volume_metrics.evaluate_volume`); None without a needle.
+  over 3 mm (:func:`needlenet.eval._volume_metrics.evaluate_volume`); None without a needle;
+- ``covered_fraction``: tracked needle volumes whose tip lies inside the reported 95% region.
 
 The sets are for testing and choosing only: nothing is trained or tuned on them.
 """
@@ -103,7 +104,7 @@ def run_volume_set(seqs, seed: int, log, rows: list, model: str | None,
             log(f"  external {name:22s} {kind:9s} median {_fmt(row['tip_error_median_mm'])} "
                 f"p95 {_fmt(row['tip_error_p95_mm'])} mm, tracked "
                 f"{_fmt(row['tracked_fraction'])}, false {_fmt(row['false_tracking_fraction'])}"
-                f", failure {_fmt(row['failure_rate'])}")
+                f", failure {_fmt(row['failure_rate'])}, in 95% {_fmt(row['covered_fraction'])}")
         pm = pooled_metrics(per)
         row = {"suite": "external", "tracker": "volume", "method": method, "features": kind,
                "model": model if kind == "learned" else None, "sequence": "pooled",
@@ -115,7 +116,8 @@ def run_volume_set(seqs, seed: int, log, rows: list, model: str | None,
         rows.append(row)
         log(f"  external {'pooled':22s} {kind:9s} median {_fmt(row['tip_error_median_mm'])} "
             f"p95 {_fmt(row['tip_error_p95_mm'])} mm, tracked {_fmt(row['tracked_fraction'])}"
-            f", false {_fmt(row['false_tracking_fraction'])}, score {_fmt(row['score'], 3)}")
+            f", false {_fmt(row['false_tracking_fraction'])}, score {_fmt(row['score'], 3)}"
+            f", in 95% {_fmt(row['covered_fraction'])}")
     return {"rows": rows, "traces": traces}
 
 
@@ -127,9 +129,11 @@ def markdown_volume_set(result: dict, machine: dict) -> str:
              "reported `tracking`; false: needle-free volumes reported `tracking`; score: "
              "needle volumes tracked within 3 mm of the tip over needle volumes, less the false "
              "fraction; failure: Zhao's (no estimate, or tip or axis error over 3 mm) over "
-             "needle volumes.", "",
+             "needle volumes; in 95%: tracked needle volumes whose tip lies inside the reported "
+             "95% region.", "",
              "| sequence | probe | needle | features | median (mm) | 95th (mm) | tracked | "
-             "false | score | failure |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "false | score | failure | in 95% |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     lines += table_rows(result["rows"], lambda r: f"{r['gauge']} G, CR {r['target_cr']:g}",
-                        lambda r: f"{_fmt(r.get('score'), 3)} | {_pct(r.get('failure_rate'))}")
+                        lambda r: f"{_fmt(r.get('score'), 3)} | {_pct(r.get('failure_rate'))} | "
+                                  f"{_pct(r.get('covered_fraction'))}")
     return "\n".join(lines)

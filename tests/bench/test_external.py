@@ -105,6 +105,45 @@ def test_sequence_metrics_on_hand_made_estimates():
     assert p["wrong_fraction"] == pytest.approx(1 / 5) and m2["wrong_fraction"] is None
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_reported_region_covers_95_percent_of_errors_drawn_from_it(dim):
+    """covered_fraction against scipy's chi-square distribution: errors drawn from the reported
+    covariance fall inside its 95% region on 95% of frames; a covariance reported four times
+    too small (half the spread) covers far fewer."""
+    from scipy.stats import chi2
+
+    rng = np.random.default_rng(7)
+    n = 4000
+    A = rng.normal(size=(n, dim, dim))
+    cov = A @ np.transpose(A, (0, 2, 1)) + 0.1 * np.eye(dim)  # positive definite
+    y = np.einsum("nij,nj->ni", np.linalg.cholesky(cov), rng.normal(size=(n, dim)))
+    true = rng.uniform(-20, 20, size=(n, dim))
+    needle, tracking = np.ones(n, bool), np.ones(n, bool)
+    m = ext.sequence_metrics(tracking, true + y, true, needle, np.zeros(n, bool), cov)
+    d2 = np.einsum("ni,ni->n", y, np.linalg.solve(cov, y[..., None])[..., 0])
+    assert m["covered_frames"] == int(np.count_nonzero(chi2.cdf(d2, dim) <= 0.95))
+    assert m["covariance_frames"] == n
+    assert 0.93 <= m["covered_fraction"] <= 0.97
+    small = ext.sequence_metrics(tracking, true + y, true, needle, np.zeros(n, bool), cov / 4)
+    assert small["covered_fraction"] < 0.6
+
+
+def test_coverage_counts_tracked_needle_frames_with_a_usable_covariance_and_pools():
+    true = np.zeros((5, 2))
+    est = np.array([[0.5, 0.0], [3.0, 0.0], [0.1, 0.0], [0.0, 0.0], [np.nan, np.nan]])
+    cov = np.stack([np.eye(2), np.eye(2), np.full((2, 2), np.nan), -np.eye(2), np.eye(2)])
+    tracking = np.array([True, True, True, True, True])
+    m = ext.sequence_metrics(tracking, est, true, np.ones(5, bool), np.zeros(5, bool), cov)
+    # frame 2 gives no covariance, frame 3 no positive definite one, frame 4 no tip: of the
+    # two left, 0.5 mm lies inside the unit covariance's 95% region (2.45), 3 mm does not
+    assert (m["covariance_frames"], m["covered_frames"]) == (2, 1)
+    assert m["covered_fraction"] == pytest.approx(0.5)
+    without = ext.sequence_metrics(tracking, est, true, np.ones(5, bool), np.zeros(5, bool))
+    assert without["covered_fraction"] is None and without["covariance_frames"] == 0
+    p = ext.pooled_metrics([m, m, without])
+    assert (p["covariance_frames"], p["covered_frames"]) == (4, 2)
+
+
 def test_a_tracking_report_without_a_tip_is_not_a_tracked_frame():
     true = np.array([[0.0, 10.0], [1.0, 10.0]])
     est = np.array([[0.0, 10.0], [np.nan, np.nan]])
