@@ -45,7 +45,9 @@ Status. ``tracking`` only on a frame that shows the needle: a frame whose search
 needle segment reports ``lost`` (or ``searching`` before any detection) with no tip. The
 filter is kept for ``forget_after_frames`` such frames, so the tip is picked up again at the
 prediction when the needle reappears; after that the tracker searches the whole frame anew.
-The covariance is the filter's actual error covariance (:mod:`._inplane_line_filter`).
+The covariance is the filter's actual error covariance (:mod:`._inplane_line_filter`) and
+where the centre line lies across the echo or map of a needle of unknown gauge
+(``gauge_radii_mm``).
 
 Mathiassen 2017's methods (``om``, ``kf+f``, ...) stay in :mod:`._inplane`, with the paper's
 entry corner and 20-70 degree search; this tracker makes none of those assumptions.
@@ -536,7 +538,8 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         tip = self._x[:2].copy()
         return NeedleEstimate(
             t=frame.t, status=Status.TRACKING, tip_mm=tip, direction=seg.direction.copy(),
-            covariance=self._reported_covariance(measured_mm, accepted, restarted),
+            covariance=self._reported_covariance(measured_mm, accepted, restarted)
+            + self._centre_line_covariance(seg.direction),
             axis_point_mm=entry,
             details=LineDetails(
                 entry_mm=entry,

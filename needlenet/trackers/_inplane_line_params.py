@@ -53,8 +53,13 @@ class LineTrackerParams:
     ``forget_after_frames``: frames without a needle after which the track
     is forgotten. ``needle_radius_mm``: maps that mark the wall facing the probe (learned
     ``target_reference = "wall"`` and the classical echo) are moved by it to the centre line
-    (default 18 G). ``frame_rate_hz``: None takes the rate from the timestamps (20 Hz until two
-    frames have been seen). ``orientation_min_angle_deg``: see the module's doc.
+    (default 18 G). ``gauge_radii_mm``: the range of radii of the needle, when the tracker is
+    not told its gauge (14-25 G): the centre line lies a radius from the wall's echo, which is
+    that uncertain, and the reported tip covariance says so
+    (:meth:`~._inplane_line_tip.LineTip._centre_line_covariance`). A needle of known radius r:
+    ``gauge_radii_mm = (r, r)`` and ``needle_radius_mm = r``.
+    ``frame_rate_hz``: None takes the rate from the timestamps (20 Hz until two frames have
+    been seen). ``orientation_min_angle_deg``: see the module's doc.
     ``edge_margin_mm``: a segment whose two ends both lie this close to the edge of the imaged
     region runs across the image and shows no tip (an interface, or a needle whose tip is out
     of view; so is the edge of a capture margin or sector mask): no needle.
@@ -98,6 +103,7 @@ class LineTrackerParams:
     confirm_after_frames: int = 3
     forget_after_frames: int = 5
     needle_radius_mm: float = 0.635
+    gauge_radii_mm: tuple[float, float] = (0.257, 1.054)
     frame_rate_hz: float | None = None
     orientation_min_angle_deg: float = 5.0
     edge_margin_mm: float = 2.0
@@ -122,8 +128,12 @@ class LineTrackerParams:
         if not 2 <= self.noise_window_frames <= 10_000:
             raise ValueError(f"noise_window_frames must lie in [2, 10000], got "
                              f"{self.noise_window_frames}")
-        if not self.needle_radius_mm >= 0:
-            raise ValueError(f"needle_radius_mm must be >= 0, got {self.needle_radius_mm}")
+        if not 0.0 <= self.needle_radius_mm <= 10.0:
+            raise ValueError(f"needle_radius_mm must lie in 0-10 mm, got {self.needle_radius_mm}")
+        lo, hi = self.gauge_radii_mm
+        if not 0.0 <= lo <= hi <= 10.0:
+            raise ValueError(f"gauge_radii_mm must be (low, high) radii with 0 <= low <= high "
+                             f"<= 10 mm, got {self.gauge_radii_mm}")
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
             raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
         for name in ("edge_margin_mm", "entry_margin_mm", "mask_edge_mm", "track_window_mm",

@@ -28,6 +28,19 @@ class LineTip:
             return 0.0
         return self.params.needle_radius_mm
 
+    def _centre_line_covariance(self, direction: np.ndarray) -> np.ndarray:
+        """Where the needle's centre line lies across what the tracker reads, as a covariance
+        (mm^2) across ``direction``. The echo of the wall facing the probe (classical features,
+        and a learned map trained on that wall, as the shipped one) is moved to the centre line
+        by the nominal radius; the needle's own radius r, spread evenly over
+        ``gauge_radii_mm`` = (a, b), puts the centre line off by r less that radius: variance
+        Var(r) = (b - a)^2 / 12. A map trained on the centre line marks it: no such term."""
+        if self._offset_mm() == 0.0:
+            return np.zeros((2, 2))
+        a, b = self.params.gauge_radii_mm
+        normal = np.array([-direction[1], direction[0]])
+        return (b - a) ** 2 / 12.0 * np.outer(normal, normal)
+
     def _echo_beyond(self, frame: Frame, inner: np.ndarray, seg: NeedleLine
                      ) -> tuple[float, float]:
         """(how far the echo goes on past the end of ``seg``, oriented entry to tip; how far
