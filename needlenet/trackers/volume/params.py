@@ -289,6 +289,14 @@ class RoiRkParams:
     p0_angle_rate, p0_velocity : float
         Initial variances of the angular rates (rad^2/s^2) and of the tip velocity
         (mm^2/s^2); Zhao starts both at zero.
+    rival_check_volumes : int
+        While tracking, the initialisation runs again every this many volumes without the
+        tracked line's ROI (0: never), looking for a needle that advances while the tracked
+        line stands still (a bright tissue line taken at the start).
+    rival_advance_mm : float
+        How far that needle must have advanced along its axis since it was first seen, while
+        the tracked tip moved less than half as far, to take the track over (ten times the tip
+        measurement's 0.2 mm noise).
     """
 
     init_attempts: int = 5
@@ -311,15 +319,17 @@ class RoiRkParams:
     r_velocity: float = 4.0
     p0_angle_rate: float = math.radians(5.0) ** 2
     p0_velocity: float = 25.0
+    rival_check_volumes: int = 4
+    rival_advance_mm: float = 2.0
 
     def __post_init__(self):
         _check_positive(self, ("roi_radius_mm", "max_axis_jump_deg", "max_axis_shift_mm",
                                "speckle_kernel_mm", "q_angle", "q_tip", "r_angle",
                                "r_position", "r_velocity", "p0_angle_rate", "p0_velocity",
-                               "init_select_ratio"))
+                               "init_select_ratio", "rival_advance_mm"))
         _check_non_negative(self, ("speckle_search_mm", "init_min_likelihood",
                                    "init_min_contrast", "init_max_sheet", "init_tip_margin_mm"))
-        _check_integers(self, (("init_attempts", 1),))
+        _check_integers(self, (("init_attempts", 1), ("rival_check_volumes", 0)))
         if self.init_select not in ("support", "likelihood"):
             raise ValueError(f"init_select must be 'support' or 'likelihood', "
                              f"got {self.init_select!r}")

@@ -7,7 +7,12 @@ speckle tracking (eq. (5)) and correct the state of eqs. (2)-(4). When the ROI l
 needle the tracker reports ``lost`` and initialises again on the next volume.
 
 The initialisation accepts only a needle that starts near the sector's boundary (Zhao: "the
-needle is inserted from the outside"), trying the next RANSAC hypothesis otherwise. At CR 2.5
+needle is inserted from the outside"), trying the next RANSAC hypothesis otherwise. A bright
+tissue line can pass that test as well as a needle; the needle is what advances. So every
+``rival_check_volumes`` volumes the initialisation runs again without the tracked line's ROI,
+and a needle found there that has advanced along its axis by ``rival_advance_mm`` since it was
+first seen, while the tracked tip stood still, takes the track over (the tracked line was
+tissue). At CR 2.5
 the 99th-percentile threshold sits at the needle's own level (Zhao's Table 3) and the line
 filter's strongest tubes are tissue, so the classical initialisation fails or locks on a
 tissue structure.
@@ -51,6 +56,7 @@ TIP_VELOCITY = slice(7, 10)  # v_t (mm/s)
 STATE_SIZE = 10
 # The measurement Z = [beta, alpha, p_t, v_t]; without a speckle velocity, its first rows
 _Z_WITHOUT_VELOCITY = slice(0, 5)
+_MAX_RIVALS = 8  # needles noted beside the tracked line: a bound on memory, not a setting
 # Learned initialisation (init_select = "likelihood"): the structures that compete with a
 # needle already found are looked for among this many of the most likely voxels left, with a
 # quarter of init_max_trials (a needle needs a few hundred of the map's most likely voxels).
@@ -69,6 +75,12 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         super().reset()
         self._kf: StateFilter | None = None
         self._prev_image: np.ndarray | None = None  # for speckle tracking
+        # the rival search's own random stream, so that it leaves the tracking's draws alone
+        self._rival_rng = self.rng.spawn(1)[0]
+        # needles seen beside the tracked line: (direction, tip, the tracked tip then)
+        self._rivals: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._since_check = 0
+        self._check_tip: np.ndarray | None = None  # the tracked tip at the last check
 
     def _zhao_model(self, dt: float):
         r = self.params.roi_rk
@@ -84,17 +96,7 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
             if not m.ok:
                 self._prev_image = None
                 return self._report(frame, self._not_found(), m)
-            x = np.zeros(STATE_SIZE)  # the rates and the velocity start at zero
-            x[ANGLES] = angles(m.direction)
-            x[TIP] = m.tip
-            p0 = np.empty(STATE_SIZE)
-            p0[ANGLES], p0[ANGLE_RATES] = r.r_angle, r.p0_angle_rate
-            p0[TIP], p0[TIP_VELOCITY] = r.r_position, r.p0_velocity
-            model = self._zhao_model(dt)
-            self._kf = StateFilter(x, np.diag(p0), model.H, model.R)
-            self._prev_image = vol.image
-            return self._report(frame, Status.TRACKING, m, m.tip, m.direction,
-                                self._kf.P[TIP, TIP])
+            return self._start(frame, vol, m, dt)
         # Step 2: predict (eqs. (2)-(3)), ROI (eq. (1)), RANSAC, speckle tracking, correct.
         kf = self._kf
         model = self._zhao_model(dt)
@@ -102,6 +104,9 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         kf.predict(F=model.F, Q=model.Q)
         u_pred = angles_to_direction(*kf.x[ANGLES])
         tip_pred = kf.x[TIP]
+        rival = self._advancing_rival(frame, vol, level, tip_pred, u_pred)
+        if rival is not None:  # the tracked line stood still while a needle advanced
+            return self._start(frame, vol, rival, dt)
         region = cylinder(vol, tip_pred, u_pred, r.roi_radius_mm)  # eq. (1)
         self._region_maps(vol, tip_pred, u_pred, r.roi_radius_mm)  # learned: the ROI's maps
         m = measure(vol, region, level, p, self.rng, max_trials=p.measurement.max_trials,
@@ -134,7 +139,62 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         return self._report(frame, Status.TRACKING, m, kf.x[TIP],
                             angles_to_direction(*kf.x[ANGLES]), kf.P[TIP, TIP])
 
-    def _initialise(self, frame: Frame, vol: Volume, level: float) -> Measurement:
+    def _start(self, frame: Frame, vol: Volume, m: Measurement, dt: float) -> NeedleEstimate:
+        """Start the Kalman filter on needle ``m`` (the rates and the velocity at zero)."""
+        r = self.params.roi_rk
+        x = np.zeros(STATE_SIZE)
+        x[ANGLES] = angles(m.direction)
+        x[TIP] = m.tip
+        p0 = np.empty(STATE_SIZE)
+        p0[ANGLES], p0[ANGLE_RATES] = r.r_angle, r.p0_angle_rate
+        p0[TIP], p0[TIP_VELOCITY] = r.r_position, r.p0_velocity
+        model = self._zhao_model(dt)
+        self._kf = StateFilter(x, np.diag(p0), model.H, model.R)
+        self._prev_image = vol.image
+        self._rivals, self._since_check, self._check_tip = [], 0, m.tip.copy()
+        return self._report(frame, Status.TRACKING, m, m.tip, m.direction,
+                            self._kf.P[TIP, TIP])
+
+    def _advancing_rival(self, frame: Frame, vol: Volume, level: float, tip: np.ndarray,
+                         direction: np.ndarray) -> Measurement | None:
+        """Every ``rival_check_volumes`` volumes, unless the tracked tip has advanced along its
+        axis by half ``rival_advance_mm`` since the last such volume or the start (then the
+        tracked needle is the one being inserted), Step 1 on the whole volume less the
+        tracked line's ROI: each needle found there is noted with the tracked tip; when one
+        is found again on a noted line (within ``max_axis_jump_deg`` and
+        ``max_axis_shift_mm``) with its tip ``rival_advance_mm`` further along its axis than
+        when first seen, while the tracked tip advanced along the tracked axis by less than
+        half as much, it is returned: the needle to track."""
+        r = self.params.roi_rk
+        self._since_check += 1
+        if r.rival_check_volumes == 0 or self._since_check < r.rival_check_volumes:
+            return None
+        self._since_check = 0
+        last, self._check_tip = self._check_tip, np.array(tip, float)
+        if last is not None and float((tip - last) @ direction) >= 0.5 * r.rival_advance_mm:
+            return None  # the tracked needle advances: it is the one inserted
+        m = self._initialise(frame, vol, level, exclude=(tip, direction, r.roi_radius_mm),
+                             rng=self._rival_rng)
+        if not m.ok:
+            return None
+        for r_dir, r_tip, tracked_then in self._rivals:
+            turn = math.degrees(math.acos(min(1.0, abs(float(m.direction @ r_dir)))))
+            w = r_tip - m.tip
+            shift = float(np.linalg.norm(w - (w @ m.direction) * m.direction))
+            if turn <= r.max_axis_jump_deg and shift <= r.max_axis_shift_mm:
+                advanced = float((m.tip - r_tip) @ m.direction)
+                tracked = float((tip - tracked_then) @ direction)
+                if advanced >= r.rival_advance_mm and tracked < 0.5 * advanced:
+                    return m
+                return None  # a noted line: its first sighting stays the reference
+        if len(self._rivals) >= _MAX_RIVALS:
+            del self._rivals[0]
+        self._rivals.append((m.direction.copy(), m.tip.copy(), np.array(tip, float)))
+        return None
+
+    def _initialise(self, frame: Frame, vol: Volume, level: float,
+                    exclude: tuple[np.ndarray, np.ndarray, float] | None = None,
+                    rng: np.random.Generator | None = None) -> Measurement:
         """Step 1 of Zhao: RANSAC on the tubularness of the whole volume places the first ROI,
         in which the needle is measured on the intensity.
 
@@ -143,8 +203,11 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         ``min_length_mm`` long, starting within ``entry_margin_mm`` of the sector's boundary
         and ending with a tip inside the volume (``init_tip_margin_mm``). A hypothesis that
         is not (a tubular structure of the tissue) is set aside with its inliers and RANSAC
-        runs again, up to ``init_attempts`` times (sequential RANSAC).
+        runs again, up to ``init_attempts`` times (sequential RANSAC). ``exclude``: (point,
+        direction, radius): candidates within the radius of that line are set aside first;
+        ``rng``: the random stream (the tracker's by default).
         """
+        rng = self.rng if rng is None else rng
         p = self.params
         mp, r = p.measurement, p.roi_rk
         if self._learned:  # a learned map already says where the needle is
@@ -163,6 +226,10 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
             # Inliers on the block-averaged grid lie up to a working voxel from the axis.
             r_in = max(mp.inlier_radius_mm, float(np.max(tub.grid.spacing_mm)))
         keep = np.ones(len(pts), bool)
+        if exclude is not None:
+            c, u, radius = exclude
+            w = pts - np.asarray(c, float)
+            keep &= np.linalg.norm(w - np.outer(w @ u, u), axis=1) > radius
         trials = 0
         m = fail("no candidates")
         # learned maps: every hypothesis that passes competes on its likelihood
@@ -183,13 +250,13 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
                          is_sample_valid=min_sample_distance(mp.min_sample_distance_mm),
                          success_probability=mp.success_probability,
                          max_trials=max_trials, batch_size=mp.batch_size,
-                         refine_iterations=mp.refine_iterations, rng=self.rng)
+                         refine_iterations=mp.refine_iterations, rng=rng)
             trials += res.n_trials
             if not res:
                 m = fail(f"RANSAC: {res.reason}", trials)
                 break
             region = cylinder(vol, res.model.origin, res.model.direction, r.roi_radius_mm)
-            m = measure(vol, region, level, p, self.rng, max_trials=mp.max_trials)
+            m = measure(vol, region, level, p, rng, max_trials=mp.max_trials)
             m.trials += trials
             if m.ok and m.entry_gap_mm > mp.entry_margin_mm:
                 m = fail(f"not a needle inserted from outside: it starts {m.entry_gap_mm:.1f} "
