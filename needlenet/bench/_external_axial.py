@@ -28,14 +28,7 @@ import numpy as np
 
 import synth
 
-from ._external import (
-    _fmt,
-    _pct,
-    estimate_metrics,
-    frame_classes,
-    pooled_metrics,
-    table_rows,
-)
+from ._external import _fmt, _pct, estimate_metrics, frame_classes, pooled_metrics, table_rows
 
 __all__ = ["PREDICT_AHEAD_MM", "axial_data_dir", "markdown_axial", "run_axial_set",
            "tip_prediction"]
