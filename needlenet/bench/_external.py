@@ -32,6 +32,8 @@ import numpy as np
 
 import synth
 
+from ..eval._coverage import region_coverage, reported_tips
+
 __all__ = ["data_dir", "external_sequences", "frame_classes", "markdown", "run",
            "sequence_metrics", "pooled_metrics"]
 
@@ -87,33 +89,10 @@ def sequence_metrics(tracking: np.ndarray, tip_est: np.ndarray, tip_true: np.nda
     err = np.linalg.norm(tip_est[scored] - tip_true[scored], axis=1)
     n_cov = n_covered = 0
     if tip_cov is not None:
-        n_cov, n_covered = _coverage(tip_est[scored] - tip_true[scored],
-                                     np.asarray(tip_cov, float)[scored])
+        n_cov, n_covered = region_coverage(tip_est[scored] - tip_true[scored],
+                                           np.asarray(tip_cov, float)[scored])
     return _summary(err, int(needle.sum()), int(scored.sum()), int(free.sum()),
                     int((free & tracking).sum()), n_covered, n_cov)
-
-
-# the probability of the reported region that covered_fraction tests
-COVERAGE_PROBABILITY = 0.95
-
-
-def _coverage(y: np.ndarray, cov: np.ndarray) -> tuple[int, int]:
-    """(frames with a usable covariance, those whose error ``y`` (N, D) lies inside the
-    ``COVERAGE_PROBABILITY`` region of its covariance (N, D, D)). A covariance that is not
-    finite or not positive definite is no region."""
-    from ..backends import chi2_gate
-
-    if not len(y):
-        return 0, 0
-    usable = np.all(np.isfinite(cov), axis=(1, 2))
-    usable[usable] &= np.all(np.linalg.eigvalsh(cov[usable]) > 0, axis=1)
-    if not usable.any():
-        return 0, 0
-    y, cov = y[usable], cov[usable]
-    d2 = np.einsum("ni,ni->n", y, np.linalg.solve(cov, y[..., None])[..., 0])
-    inside = np.sqrt(d2) <= chi2_gate(y.shape[1], COVERAGE_PROBABILITY)
-    return len(y), int(inside.sum())
-
 
 
 def estimate_metrics(est: list, seq: synth.Sequence) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -122,16 +101,12 @@ def estimate_metrics(est: list, seq: synth.Sequence) -> tuple[np.ndarray, np.nda
     needle, free = frame_classes(seq)
     tracking = np.array([e.status.value == "tracking" for e in est])
     nd = seq.ndim  # points (x, z) in 2D frames, (x, y, z) in volumes
-    tip_est = np.array([np.full(nd, np.nan) if e.tip_mm is None
-                        else np.asarray(e.tip_mm, float) for e in est]).reshape(-1, nd)
+    tip_est, tip_cov = reported_tips(est, nd)
     tip_true = np.full((seq.n_frames, nd), np.nan) if seq.tip_mm is None \
         else np.asarray(seq.tip_mm, float)
-    tip_cov = np.full((seq.n_frames, nd, nd), np.nan)
-    for i, e in enumerate(est):
-        if e.covariance is not None and np.shape(e.covariance) == (nd, nd):
-            tip_cov[i] = e.covariance
     return tracking, tip_est, sequence_metrics(tracking, tip_est, tip_true, needle, free,
                                                tip_cov)
+
 
 def pooled_metrics(per_sequence: list[dict]) -> dict:
     """The metrics over all frames of several sequences (errors and counts pooled)."""

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 
 from ._auc import roc_auc
+from ._coverage import tip_coverage
 from ._inplane_metrics import inplane_errors, inplane_metrics, insertion_angle_deg
 
 __all__ = ["evaluate", "latency_summary", "inplane_metrics", "inplane_errors",
-           "insertion_angle_deg",
-           "roc_auc"]
+           "insertion_angle_deg", "roc_auc", "tip_coverage"]
 
 
 def latency_summary(estimates) -> dict:
@@ -23,7 +23,9 @@ def latency_summary(estimates) -> dict:
 
 def evaluate(modality: str, estimates, seq) -> dict:
     """The paper's metrics for a tracked sequence with labels (Table III for ``inplane``,
-    Zhao's for ``volume``, Carriere's for ``axial``) plus latency."""
+    Zhao's for ``volume``, Carriere's for ``axial``), ``tip_in_95_fraction`` (the tracked frames
+    whose labelled tip lies inside the reported 95% region: 0.95 when the reported covariance
+    is honest; :func:`tip_coverage`) and latency."""
     if modality == "inplane":
         out = inplane_metrics(estimates, seq)
     elif modality == "volume":
@@ -40,5 +42,7 @@ def evaluate(modality: str, estimates, seq) -> dict:
         out = axial_metrics(estimates, seq)
     else:
         raise ValueError(f"unknown modality {modality!r}")
-    out.setdefault("summary", {}).update(latency_summary(estimates))
+    summary = out.setdefault("summary", {})
+    summary["tip_in_95_fraction"] = tip_coverage(estimates, seq)
+    summary.update(latency_summary(estimates))
     return out
