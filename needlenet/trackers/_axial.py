@@ -20,8 +20,7 @@ Where the paper leaves things open, or where we depart from it (each is a field 
   a spot stays below ``detect_compact`` of it), which on a classical map must stand out of
   the slice's other compact spots by ``detect_ratio`` (on PyMUST's phased-array slices the
   best of the speckle's spots scores 18-25, its next 1-3% less), and is accepted when its
-  robust score
-  (max - median) / (1.4826 MAD) reaches ``detect_score`` (15: needle-free slices of the
+  robust score (max - median) / (1.4826 MAD) reaches ``detect_score`` (15: needle-free slices of the
   simulator score below 10 on a homogeneous background and up to 13-16 among the bright
   structures of an inhomogeneous one; needles score above 30 at a contrast ratio of 2 and
   12-20 at 1.5), and for learned sources when the smoothed probability reaches
@@ -60,8 +59,7 @@ Where the paper leaves things open, or where we depart from it (each is a field 
 * phi is re-estimated by PCA from all accepted centres at every frame (the paper computes it
   at 10 mm, where a needle of R = 1500 mm has deflected by 0.03 mm and PCA returns noise), the
   history is projected again, and the u axis is oriented so that the deflection is positive
-  (the prior R ~ N(1500, 600) has almost no negative radii). phi is frozen at D with the
-  filter.
+  (the prior R ~ N(1500, 600) has almost no negative radii); phi is frozen at D.
 * Depth v of a slice: the probe pose's translation along its elevation axis, signed by the
   direction the slices move (``insertion_sign``); without poses, frame k since the reset lies
   at (k + 1) ``step_mm``. The origin of the (u, v) plane is the first centre (section IV).
@@ -84,10 +82,10 @@ the shaft crosses the slice, the sequence file's axial label); ``direction`` = t
 component of the predicted shaft tangent at the slice, i.e. the deflection axis signed by
 du/dv (the sequence file's axial ``direction``), ``None`` before the model exists;
 ``covariance`` (x, z) mm^2 from the curvature of the NCC peak (a heuristic: (1 - peak) /
-|d2 NCC / dpx^2| per axis, at least 1/12 px^2); ``details`` an :class:`AxialDetails`: the
-slice's depth, match and timings (Carriere's Table II split), and the bicycle model after
-the slice's update (:class:`AxialModel`; ``predicted_u_mm`` is the model's prediction for
-the slice before that update, the ROI's centre).
+|d2 NCC / dpx^2| per axis, at least 1/12 px^2; on a wall-referenced map plus the centre's depth
+below the wall, :meth:`AxialParams.centre_covariance`); ``details`` an :class:`AxialDetails`:
+the slice's depth, match and timings (Carriere's Table II split), and the bicycle model after
+the slice's update (``predicted_u_mm``: its prediction for the slice before, the ROI's centre).
 """
 
 from __future__ import annotations
@@ -527,6 +525,8 @@ class AxialTracker(Tracker):
                                image_ms=(t_image - t0) * 1e3,
                                filter_ms=(t_filter - t_image) * 1e3)
         tip = None if center is None else grid.index_to_points(center)
+        if tip is not None and self._wall_offset_rc(spacing)[0] > 0:  # a centre below a wall
+            cov = cov + p.centre_covariance()
         return NeedleEstimate(t=frame.t, status=status, tip_mm=tip,
                               direction=direction if tip is not None else None,
                               covariance=cov if tip is not None else None, reason=reason,

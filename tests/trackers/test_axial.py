@@ -264,3 +264,23 @@ def test_parameters_are_checked():
     with pytest.raises(ValueError, match="unknown method"):
         AxialTracker("uhercik")
     assert isinstance(AxialTracker().features, VarianceFeatures)
+
+
+def test_a_wall_referenced_map_reports_the_centres_depth_for_an_unknown_gauge():
+    # radii spread evenly over 14-25 G: the variance of a fine grid of them, in depth only
+    a, b = AxialParams().gauge_radii_mm
+    C = AxialParams().centre_covariance()
+    assert C[1, 1] == pytest.approx(np.var(np.linspace(a, b, 100_001)), rel=1e-4)
+    assert C[0, 0] == C[0, 1] == C[1, 0] == 0.0
+    assert np.allclose(AxialParams(gauge_radii_mm=(0.4, 0.4)).centre_covariance(), 0.0)
+    seq = _axial(7, frames=12)
+    centred, wall = _PerfectLearned(seq), _PerfectLearned(seq)
+    wall.target_reference = "wall"
+    est_c = AxialTracker(features=centred, params=_params(), rng=0).run(seq)
+    est_w = AxialTracker(features=wall, params=_params(), rng=0).run(seq)
+    tracked = [(c, w) for c, w in zip(est_c, est_w, strict=True) if c.covariance is not None
+               and w.covariance is not None]
+    assert tracked
+    for c, w in tracked:  # the wall-referenced map's depth variance holds the centre's
+        assert w.covariance[1, 1] >= C[1, 1]
+        assert c.covariance[1, 1] < w.covariance[1, 1]
