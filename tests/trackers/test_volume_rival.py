@@ -49,3 +49,20 @@ def test_the_rival_search_leaves_a_needle_that_advances_alone(world):
     seq = synth.generate("volume", seed=901, frames=10, cr=2.5, output_size=96)
     assert np.array_equal(_errors(seq), _errors(seq, VolumeTrackerParams(rival_check_volumes=0)))
     assert np.all(_errors(seq) <= 1.0)
+
+
+def test_a_probe_motion_drops_the_needles_noted_beside_the_track(world):
+    pytest.importorskip("onnxruntime")
+    from needlenet.trackers._base import frames_from_sequence
+
+    tracker = make_tracker("volume", "roi-rk", "learned", seed=0)
+    for k, frame in enumerate(frames_from_sequence(world)):
+        if k == 5:
+            break
+        tracker.update(frame)
+    assert tracker._rivals  # the needle seen beside the tissue line at the fourth volume
+    D = np.eye(4)
+    D[:3, 3] = [1.0, 0.0, 0.0]  # the probe moved 1 mm along x
+    tracker.move_frame(D)
+    assert tracker._rivals == []
+    assert np.allclose(tracker._check_tip, tracker._kf.x[4:7])

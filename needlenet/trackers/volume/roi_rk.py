@@ -7,15 +7,14 @@ speckle tracking (eq. (5)) and correct the state of eqs. (2)-(4). When the ROI l
 needle the tracker reports ``lost`` and initialises again on the next volume.
 
 The initialisation accepts only a needle that starts near the sector's boundary (Zhao: "the
-needle is inserted from the outside"), trying the next RANSAC hypothesis otherwise. A bright
-tissue line can pass that test as well as a needle; the needle is what advances. So every
-``rival_check_volumes`` volumes the initialisation runs again without the tracked line's ROI,
-and a needle found there that has advanced along its axis by ``rival_advance_mm`` since it was
-first seen, while the tracked tip stood still, takes the track over (the tracked line was
-tissue). At CR 2.5
+needle is inserted from the outside"), trying the next RANSAC hypothesis otherwise. At CR 2.5
 the 99th-percentile threshold sits at the needle's own level (Zhao's Table 3) and the line
 filter's strongest tubes are tissue, so the classical initialisation fails or locks on a
-tissue structure.
+tissue structure. A bright tissue line can pass that test as well as a needle; the needle is
+what advances. So every ``rival_check_volumes`` volumes the initialisation runs again without
+the tracked line's ROI, and a needle found there that has advanced along its axis by
+``rival_advance_mm`` since it was first seen, while the tracked tip stood still, takes the
+track over (the tracked line was tissue).
 """
 
 from __future__ import annotations
@@ -309,7 +308,8 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         """The tip moves as a point, its velocity rotates, the axis angles (beta, alpha of
         eq. (4)) are recomputed from the rotated direction, their rates and covariance carried
         by the Jacobian of that map; P becomes B P B^T with B the whole linear map. The
-        previous volume (speckle tracking) is dropped."""
+        previous volume (speckle tracking) and the needles noted beside the tracked line are
+        dropped; the next check compares the tracked tip with where it is now."""
         kf = self._kf
         if kf is not None:
             x = kf.x
@@ -338,7 +338,9 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
             moved[TIP_VELOCITY] = R @ x[TIP_VELOCITY]
             kf.x = moved
             kf.P = B @ kf.P @ B.T
+            self._check_tip = kf.x[TIP].copy()
         self._prev_image = None
+        self._rivals = []
 
 
 def _block_sector(sector: np.ndarray, f: int) -> np.ndarray:
