@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..backends import CarriereParams
+from ._base import GAUGE_RADII_MM, radius_variance
 
 __all__ = ["AxialParams"]
 
@@ -27,7 +28,7 @@ class AxialParams:
     insertion_sign: int | None = None  # +1/-1 along the elevation axis; None: from the motion
     needle_radius_mm: float = 0.635  # 18 G; the detector's Gaussian sigma
     # the radii of a needle whose gauge is not given (14-25 G): see centre_covariance
-    gauge_radii_mm: tuple[float, float] = (0.257, 1.054)
+    gauge_radii_mm: tuple[float, float] = GAUGE_RADII_MM
     detect_score: float = 15.0  # robust score (max - median) / MAD of the smoothed feature
     lost_score: float = 8.0  # below this at the matched centre the cross-section vanished
     # a detection must be a compact spot (the smoothed map at detect_lateral_mm either side of
@@ -87,8 +88,7 @@ class AxialParams:
         once moved there by ``needle_radius_mm``: radii spread evenly over ``gauge_radii_mm`` =
         (a, b) leave it off in depth by a variance of (b - a)^2 / 12 (the in-plane tracker's
         :meth:`~._inplane_line_tip.LineTip._centre_line_covariance`, across the slice)."""
-        a, b = self.gauge_radii_mm
-        return np.diag([0.0, (b - a) ** 2 / 12.0])
+        return np.diag([0.0, radius_variance(self.gauge_radii_mm, "gauge_radii_mm")])
 
     def __post_init__(self) -> None:
         if self.filter_update not in ("paper", "lsq"):
@@ -101,10 +101,7 @@ class AxialParams:
                              f"{self.detect_anchor!r}")
         if self.insertion_sign not in (None, 1, -1):
             raise ValueError(f"insertion_sign must be None, 1 or -1, got {self.insertion_sign}")
-        lo, hi = self.gauge_radii_mm
-        if not 0.0 <= lo <= hi <= 10.0:
-            raise ValueError(f"gauge_radii_mm must be (low, high) radii with 0 <= low <= high "
-                             f"<= 10 mm, got {self.gauge_radii_mm}")
+        radius_variance(self.gauge_radii_mm, "gauge_radii_mm")  # checks the range
         for name in ("template_mm", "step_mm", "needle_radius_mm", "shape_step_mm",
                      "max_jump_mm", "measurement_sd_mm"):
             if not getattr(self, name) > 0:

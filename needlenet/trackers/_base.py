@@ -14,7 +14,21 @@ from ..features import FeatureSource, Frame, FrameError, check_frame
 from ._details import EstimateDetails
 from ._margins import zero_margins
 
-__all__ = ["Status", "NeedleEstimate", "Tracker", "RngLike", "frames_from_sequence"]
+__all__ = ["Status", "NeedleEstimate", "Tracker", "RngLike", "frames_from_sequence",
+           "GAUGE_RADII_MM", "radius_variance"]
+
+# the radii of the needles a tracker may meet when not told the gauge (25-14 G outer radii, mm)
+GAUGE_RADII_MM = (0.257, 1.054)
+
+
+def radius_variance(radii_mm: tuple[float, float], owner: str) -> float:
+    """The variance (mm^2) of a needle radius spread evenly over ``radii_mm`` = (a, b):
+    (b - a)^2 / 12. ``owner`` names the parameter in the error for a bad range."""
+    a, b = (float(v) for v in radii_mm)
+    if not 0.0 <= a <= b <= 10.0:
+        raise ValueError(f"{owner} must be (low, high) radii with 0 <= low <= high <= 10 mm, "
+                         f"got {tuple(radii_mm)}")
+    return (b - a) ** 2 / 12.0
 
 
 class Status(str, Enum):

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..backends import LineSearchParams
+from ._base import GAUGE_RADII_MM, radius_variance
 from ._inplane_echo_end import EchoEndParams
 from ._inplane_growing import GrowingMarkParams
 from ._inplane_line_echo import EchoTestParams
@@ -103,7 +104,7 @@ class LineTrackerParams:
     confirm_after_frames: int = 3
     forget_after_frames: int = 5
     needle_radius_mm: float = 0.635
-    gauge_radii_mm: tuple[float, float] = (0.257, 1.054)
+    gauge_radii_mm: tuple[float, float] = GAUGE_RADII_MM
     frame_rate_hz: float | None = None
     orientation_min_angle_deg: float = 5.0
     edge_margin_mm: float = 2.0
@@ -130,10 +131,7 @@ class LineTrackerParams:
                              f"{self.noise_window_frames}")
         if not 0.0 <= self.needle_radius_mm <= 10.0:
             raise ValueError(f"needle_radius_mm must lie in 0-10 mm, got {self.needle_radius_mm}")
-        lo, hi = self.gauge_radii_mm
-        if not 0.0 <= lo <= hi <= 10.0:
-            raise ValueError(f"gauge_radii_mm must be (low, high) radii with 0 <= low <= high "
-                             f"<= 10 mm, got {self.gauge_radii_mm}")
+        radius_variance(self.gauge_radii_mm, "gauge_radii_mm")  # checks the range
         if self.frame_rate_hz is not None and not self.frame_rate_hz > 0:
             raise ValueError(f"frame_rate_hz must be positive, got {self.frame_rate_hz}")
         for name in ("edge_margin_mm", "entry_margin_mm", "mask_edge_mm", "track_window_mm",

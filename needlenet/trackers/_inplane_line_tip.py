@@ -10,6 +10,7 @@ import numpy as np
 
 from ..backends import NeedleLine, WorkingMap, extend_end
 from ..features import Frame
+from ._base import radius_variance
 from ._inplane_echo_end import echo_end
 from ._inplane_geometry import distance_to_edge, sample_grid
 from ._inplane_line_echo import echo_beyond
@@ -37,9 +38,9 @@ class LineTip:
         Var(r) = (b - a)^2 / 12. A map trained on the centre line marks it: no such term."""
         if self._offset_mm() == 0.0:
             return np.zeros((2, 2))
-        a, b = self.params.gauge_radii_mm
         normal = np.array([-direction[1], direction[0]])
-        return (b - a) ** 2 / 12.0 * np.outer(normal, normal)
+        return radius_variance(self.params.gauge_radii_mm, "gauge_radii_mm") * \
+            np.outer(normal, normal)
 
     def _echo_beyond(self, frame: Frame, inner: np.ndarray, seg: NeedleLine
                      ) -> tuple[float, float]:

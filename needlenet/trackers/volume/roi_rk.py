@@ -112,9 +112,7 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
                     predicted_direction=u_pred, predicted_tip=tip_pred)
         reason = None
         if m.ok:
-            turn = math.degrees(math.acos(min(1.0, abs(float(m.direction @ u_pred)))))
-            w = tip_pred - m.entry
-            shift = float(np.linalg.norm(w - (w @ m.direction) * m.direction))
+            turn, shift = _axis_change(m.direction, m.entry, u_pred, tip_pred)
             if turn > r.max_axis_jump_deg:
                 reason = f"axis jump: {turn:.1f} deg > {r.max_axis_jump_deg} deg"
             elif shift > r.max_axis_shift_mm:
@@ -177,9 +175,7 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         if not m.ok:
             return None
         for r_dir, r_tip, tracked_then in self._rivals:
-            turn = math.degrees(math.acos(min(1.0, abs(float(m.direction @ r_dir)))))
-            w = r_tip - m.tip
-            shift = float(np.linalg.norm(w - (w @ m.direction) * m.direction))
+            turn, shift = _axis_change(m.direction, m.tip, r_dir, r_tip)
             if turn <= r.max_axis_jump_deg and shift <= r.max_axis_shift_mm:
                 advanced = float((m.tip - r_tip) @ m.direction)
                 tracked = float((tip - tracked_then) @ direction)
@@ -341,6 +337,15 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
             self._check_tip = kf.x[TIP].copy()
         self._prev_image = None
         self._rivals = []
+
+
+def _axis_change(direction: np.ndarray, point: np.ndarray, other_direction: np.ndarray,
+                 other_point: np.ndarray) -> tuple[float, float]:
+    """(degrees between two axes, mm from the first axis, through ``point`` along unit
+    ``direction``, to ``other_point``)."""
+    turn = math.degrees(math.acos(min(1.0, abs(float(direction @ other_direction)))))
+    w = other_point - point
+    return turn, float(np.linalg.norm(w - (w @ direction) * direction))
 
 
 def _block_sector(sector: np.ndarray, f: int) -> np.ndarray:
