@@ -33,6 +33,7 @@ import numpy as np
 import synth
 
 from ..eval._coverage import region_coverage, reported_tips
+from ..io import load_recording
 
 __all__ = ["data_dir", "external_sequences", "frame_classes", "markdown", "run",
            "sequence_metrics", "pooled_metrics"]
@@ -55,7 +56,8 @@ def external_sequences(directory: str | Path | None = None,
         raise FileNotFoundError(f"no sequence files (*.npz) in {d}")
     if names is not None:
         files = [f for f in files if f.stem in names]
-    return [(f.stem, synth.load_sequence(f)) for f in files]
+    # read as ``needlenet track`` reads a recording (marks drawn over a live one filled in)
+    return [(f.stem, load_recording(f)) for f in files]
 
 
 def frame_classes(seq: synth.Sequence) -> tuple[np.ndarray, np.ndarray]:

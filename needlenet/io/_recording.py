@@ -48,6 +48,7 @@ from ._limits import (
     check_transforms,
 )
 from ._metaimage import PLUS_SUFFIXES, PlusSequence, read_plus, write_plus
+from ._still_marks import fill_still_marks
 
 __all__ = ["load_recording", "save_plus_sequence", "sequence_to_plus", "needle_tip_matrix",
            "parse_spacing", "parse_crop", "RECORDING_KINDS", "DEFAULT_DYNAMIC_RANGE_DB",
@@ -421,6 +422,8 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
         origin = origin + np.array([y, x]) * sp
         meta["crop"] = [int(c) for c in crop]
     check_extent(images.shape[1:], sp, src, "spacing")
+    if nd == 2:
+        images = fill_still_marks(images, meta)
     check_meta_numbers(meta, src)
     kw.setdefault("dynamic_range_db", DEFAULT_DYNAMIC_RANGE_DB)
     if "dynamic_range_db" not in sidecar and meta.get("format") in ("image folder", "video",
