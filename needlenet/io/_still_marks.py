@@ -10,7 +10,10 @@ is pixel-identical in every frame.
 
 So, over the recording's first :data:`FRAMES` frames, a pixel that keeps one gray level
 strictly between black and white in all of them is a drawn mark, when the recording is live:
-when such pixels make up at most :data:`LIVE_SHARE` of the imaged mid-gray pixels. Black (0)
+when such pixels make up at most :data:`LIVE_SHARE` of the imaged mid-gray pixels. A flat
+still area (one gray level over :data:`FLAT_PX` x :data:`FLAT_PX` pixels, wider than a drawn
+line or letter: a screen capture's gray panel around the image), with its border, is neither
+a mark nor imaged, so a capture that was not cropped is judged by its image alone. Black (0)
 is left out (a capture margin, an anechoic lumen) and so is white (255): saturation clips a
 needle's echo to a constant too, so a mark drawn in pure white is not told from a saturated
 shaft and stays. A recording in which more pixels keep their level is not live (a simulation
@@ -30,6 +33,7 @@ __all__ = ["FRAMES", "LIVE_SHARE", "fill_still_marks", "still_marks"]
 
 FRAMES = 8  # frames a pixel must keep its level: 2^-7 of chance for a pixel of two levels
 LIVE_SHARE = 0.02  # of the imaged mid-gray pixels: a guide and text cover a few per mille
+FLAT_PX = 7  # a still area this wide in one gray level is a panel, not a drawn line
 
 
 def still_marks(images) -> np.ndarray | None:
@@ -39,13 +43,22 @@ def still_marks(images) -> np.ndarray | None:
     pixel, or a recording that is not live (see the module's doc)."""
     if images.ndim != 3 or images.dtype != np.uint8 or len(images) < FRAMES:
         return None
+    import cv2
+
     first = np.asarray(images[0])
-    still = (first > 0) & (first < 255)
-    mid = int(np.count_nonzero(still))
+    mid = (first > 0) & (first < 255)
+    still = mid.copy()
     for k in range(1, FRAMES):
         still &= np.asarray(images[k]) == first
+    # flat areas: one still level over 7 x 7 pixels (wider than any drawn line or letter),
+    # grown back to their extent and one pixel beyond
+    box = np.ones((FLAT_PX, FLAT_PX), np.uint8)
+    flat = cv2.erode(still.view(np.uint8), box) & \
+        (cv2.dilate(first, box) == cv2.erode(first, box)).view(np.uint8)
+    flat = cv2.dilate(flat, np.ones((FLAT_PX + 2, FLAT_PX + 2), np.uint8)).astype(bool)
+    still &= ~flat
     n = int(np.count_nonzero(still))
-    if n == 0 or n > LIVE_SHARE * mid:
+    if n == 0 or n > LIVE_SHARE * np.count_nonzero(mid & ~flat):
         return None
     return still
 

@@ -60,6 +60,31 @@ def test_gray_guide_over_a_live_recording_is_found_and_filled():
     np.testing.assert_array_equal(filled[:, far], marked[:, far])
 
 
+def test_gray_panel_of_an_uncropped_capture_does_not_hide_a_guide():
+    marked, drawn = _guide(_live(8))
+    T, h, w = marked.shape
+    capture = np.full((T, h + 60, w + 200), 48, np.uint8)  # a screen's gray panel
+    capture[:, 30:30 + h, 100:100 + w] = marked
+    mark = still_marks(capture)
+    assert mark is not None
+    inside = np.zeros(capture.shape[1:], bool)
+    inside[30:30 + h, 100:100 + w] = drawn
+    rim = cv2.dilate(mark.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    assert np.count_nonzero(rim & inside) >= 0.98 * np.count_nonzero(inside)
+    # the panel itself is no mark: at most its one-pixel border along the image
+    panel = np.ones(capture.shape[1:], bool)
+    panel[29:31 + h, 99:101 + w] = False
+    assert not np.any(mark & panel)
+
+
+def test_thick_solid_guide_is_a_mark_too():
+    clean = _live(9)
+    marked = clean.copy()
+    marked[:, 60:65, 20:120] = 180  # a solid line 5 pixels thick
+    mark = still_marks(marked)
+    assert mark is not None and mark[60:65, 20:120].all()
+
+
 def test_recording_that_is_not_live_is_left_alone():
     # a simulation of still tissue: frames identical but for the marks' absence of noise
     still = np.repeat(_live(2)[:1], 10, axis=0)
