@@ -18,7 +18,9 @@ is left out (a capture margin, an anechoic lumen) and so is white (255): saturat
 needle's echo to a constant too, so a mark drawn in pure white is not told from a saturated
 shaft and stays. A recording in which more pixels keep their level is not live (a simulation
 of still tissue keeps 12-60% of its pixels from frame to frame, a codec may copy still blocks
-as they were), and nothing is filled there. The marks and their one-pixel anti-aliased rim
+as they were), and nothing is filled there. Nor in a recording compressed frame by frame
+(JPEG, most MP4): the codec moves a mark's pixels by a few levels from frame to frame, as it
+does the echo's, and no pixel keeps its level. The marks and their one-pixel anti-aliased rim
 are filled in every frame by OpenCV's fast-marching inpainting, as coloured marks are.
 """
 
