@@ -20,8 +20,11 @@ shaft and stays. A recording in which more pixels keep their level is not live (
 of still tissue keeps 12-60% of its pixels from frame to frame, a codec may copy still blocks
 as they were), and nothing is filled there. Nor in a recording compressed frame by frame
 (JPEG, most MP4): the codec moves a mark's pixels by a few levels from frame to frame, as it
-does the echo's, and no pixel keeps its level. The marks and their one-pixel anti-aliased rim
-are filled in every frame by OpenCV's fast-marching inpainting, as coloured marks are.
+does the echo's, and no pixel keeps its level. A mark is drawn in one colour: of each still
+piece, at least :data:`CORE_PX` pixels and half of them keep one level (scattered echo pixels
+that a simulation without noise leaves still are of many levels). The marks and their
+one-pixel anti-aliased rim are filled in every frame by OpenCV's fast-marching inpainting, as
+coloured marks are.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ __all__ = ["FRAMES", "LIVE_SHARE", "fill_still_marks", "still_marks"]
 FRAMES = 8  # frames a pixel must keep its level: 2^-7 of chance for a pixel of two levels
 LIVE_SHARE = 0.02  # of the imaged mid-gray pixels: a guide and text cover a few per mille
 FLAT_PX = 7  # a still area this wide in one gray level is a panel, not a drawn line
+CORE_PX = 3  # pixels of one level that make a drawn piece (a dash, a stroke)
 
 
 def still_marks(images) -> np.ndarray | None:
@@ -62,7 +66,26 @@ def still_marks(images) -> np.ndarray | None:
     n = int(np.count_nonzero(still))
     if n == 0 or n > LIVE_SHARE * np.count_nonzero(mid & ~flat):
         return None
-    return still
+    return _drawn(still, first)
+
+
+def _drawn(still: np.ndarray, first: np.ndarray) -> np.ndarray | None:
+    """The parts of ``still`` drawn in one colour: connected pieces (8-neighbours) of which at
+    least :data:`CORE_PX` pixels, and at least half, keep the piece's most common level (a
+    mark's opaque core; its anti-aliased rim blends with the echo). Echo that a simulation
+    without noise leaves still (an interface unchanged from slice to slice) keeps scattered
+    pixels of many levels."""
+    import cv2
+
+    n, labels = cv2.connectedComponents(still.view(np.uint8), connectivity=8)
+    lab = labels[still]
+    counts = np.bincount(lab * 256 + first[still], minlength=n * 256).reshape(n, 256)
+    size = counts.sum(axis=1)
+    mode = counts.max(axis=1)
+    keep = (mode >= CORE_PX) & (2 * mode >= size)
+    keep[0] = False
+    out = keep[labels] & still
+    return out if out.any() else None
 
 
 def fill_still_marks(images, meta: dict) -> np.ndarray | FrameStack:

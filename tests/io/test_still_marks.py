@@ -85,6 +85,17 @@ def test_thick_solid_guide_is_a_mark_too():
     assert mark is not None and mark[60:65, 20:120].all()
 
 
+def test_scattered_still_echo_of_many_levels_is_no_mark():
+    frames = _live(10)
+    rng = np.random.default_rng(10)
+    # a few still pixels of assorted bright levels, as a simulation without noise leaves on
+    # an interface that every slice shows alike
+    rows, cols = rng.integers(20, 180, 12), rng.integers(20, 220, 12)
+    frames[:, rows, cols] = rng.integers(200, 255, 12).astype(np.uint8)
+    frames[:, 100, 100:104] = np.array([230, 241, 236, 250], np.uint8)
+    assert still_marks(frames) is None
+
+
 def test_recording_that_is_not_live_is_left_alone():
     # a simulation of still tissue: frames identical but for the marks' absence of noise
     still = np.repeat(_live(2)[:1], 10, axis=0)
