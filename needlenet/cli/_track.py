@@ -319,6 +319,10 @@ def _report(args, seq, estimates, out_json, overlay, out_plus, model_grid=None) 
         summary.update(latency_summary(estimates))
     statuses = [e.status.value for e in estimates]
     summary["status_counts"] = {s: statuses.count(s) for s in sorted(set(statuses))}
+    # on stdout too, as plain numbers: how often the tracker saw the needle, and how often it
+    # said it did not (a recording without labels has no other figure of what it found)
+    for s in ("tracking", "lost", "searching"):
+        summary[f"frames_{s}"] = statuses.count(s)
     summary = finite_json(summary)
     print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}, indent=1,
                      allow_nan=False))

@@ -31,6 +31,10 @@ def test_track_writes_frames_summary_and_overlay(inplane_file, tmp_path, capsys)
     for k in ("norm_e_mm", "e_theta_deg", "abs_e_theta_deg", "e_n_mm", "e_p_mm"):
         assert k in s
     assert s["tip_error_p95_mm"] < 1.0
+    # what the tracker said of each frame, counted (the figures of an unlabelled recording)
+    for status in ("tracking", "lost", "searching"):
+        assert s[f"frames_{status}"] == sum(fr["status"] == status for fr in res["frames"])
+    assert s["frames_tracking"] + s["frames_lost"] + s["frames_searching"] == 12
     assert gif.stat().st_size > 1000 and gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
 
 
