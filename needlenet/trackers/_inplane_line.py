@@ -18,7 +18,8 @@ runs across the imaged region from edge to edge shows no tip (a bright tissue in
 needle whose tip has left the view, or the edge of a capture margin or sector mask) and is not
 taken for one; nor is a segment whose deeper end, where a needle's tip would be, lies at that
 edge (the tip is out of view), nor, as a new needle, one whose echo in the image goes on past
-its end to that edge (a shaft map may mark only part of an interface). A needle comes in
+its end to that edge (a shaft map may mark only part of an interface) or that ends too near
+it for the image to show whether the echo ends there. A needle comes in
 through the skin or the side of the view and goes in along its axis, so a segment floating in
 the tissue (its entry end away from the edge of the view) is never taken for a new needle, and
 once a needle has been tracked it is taken only as the continuation of the needle seen on the
@@ -203,10 +204,11 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
           tip is out of view; nor may its deeper end, where a needle's tip would be, lie
           there; nor may its echo go on past its end to that edge (a learned map may mark
           only part of an interface; a learned segment on the axis of the needle tracked on
-          the frame before is not read), and with classical features it must show along the
-          line; it must not lie on a line seen standing still beside the needle; and a
-          segment floating in the tissue is taken only as the continuation of the needle
-          seen on the frame before (see the module's doc);
+          the frame before is not read), nor, as a new line, may it end too near that edge
+          for the echo's end to be read (``tip_room_sections``), and with classical features
+          it must show along the line; it must not lie on a line seen standing still beside
+          the needle; and a segment floating in the tissue is taken only as the
+          continuation of the needle seen on the frame before (see the module's doc);
         - its priority: 1 when it enters through the edge (its shallower end within
           ``entry_margin_mm`` of the edge, along the line or straight: a shallow needle comes
           in through the skin a few millimetres along its own line from the top of the
@@ -297,6 +299,10 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
             if more > 0 and far - more <= p.edge_margin_mm + p.echo.section_mm:
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's echo "
                         "goes on past its end to the edge of the view")
+            if far < p.edge_margin_mm + p.tip_room_sections * p.echo.section_mm and \
+                    not self._continues_axis(seg):
+                return (f"no needle tip in view: the {seg.length_mm:.0f} mm line ends "
+                        f"{far:.1f} mm from the edge of the view, too near to see its echo end")
             return ""
 
         def check(seg: NeedleLine) -> str:

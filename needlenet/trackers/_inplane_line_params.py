@@ -64,6 +64,12 @@ class LineTrackerParams:
     ``edge_margin_mm``: a segment whose two ends both lie this close to the edge of the imaged
     region runs across the image and shows no tip (an interface, or a needle whose tip is out
     of view; so is the edge of a capture margin or sector mask): no needle.
+    ``tip_room_sections``: a new line (one that does not continue the needle tracked on the
+    frame before) is taken only where the image past its end, before ``edge_margin_mm`` of
+    the edge, holds this many of the echo test's sections (``echo.section_mm``): the fewest
+    in which a run of echo past the end, and so whether the line ends there, can be read
+    (one section is a single noisy reading). Nearer the edge the line may run on out of view,
+    as an interface does, and its tip is not seen.
     ``entry_margin_mm``: a segment whose entry end lies this close to that edge (along the
     line or straight) enters through it, as an inserted needle does; a floating one is taken
     only as the continuation of the needle seen on the frame before (on its axis, within
@@ -108,6 +114,7 @@ class LineTrackerParams:
     frame_rate_hz: float | None = None
     orientation_min_angle_deg: float = 5.0
     edge_margin_mm: float = 2.0
+    tip_room_sections: int = 2
     entry_margin_mm: float = 3.0
     mask_edge_mm: float = 1.5
 
@@ -126,6 +133,9 @@ class LineTrackerParams:
                self.full_search_every_frames) < 1:
             raise ValueError("reinit_after_rejects, confirm_after_frames, forget_after_frames "
                              "and full_search_every_frames must be >= 1")
+        if not 0 <= self.tip_room_sections <= 20:
+            raise ValueError(f"tip_room_sections must lie in [0, 20], got "
+                             f"{self.tip_room_sections}")
         if not 2 <= self.noise_window_frames <= 10_000:
             raise ValueError(f"noise_window_frames must lie in [2, 10000], got "
                              f"{self.noise_window_frames}")

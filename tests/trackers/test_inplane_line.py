@@ -276,6 +276,26 @@ def test_where_a_line_ends_decides_whether_it_is_a_needle(p0, p1, tracked, reaso
         assert reason in est.reason
 
 
+@pytest.mark.parametrize("end_col, room, tracked", [
+    (155, 2, True),  # 9.6 mm from the side edge: room to see the echo end
+    (184, 2, False),  # 3.3 mm: under the edge margin and two sections (5.8 mm)
+    (184, 0, True),  # the same line when no room is asked for
+])
+def test_a_new_line_ending_near_the_edge_shows_no_tip(end_col, room, tracked):
+    """A new line must leave room before the edge of the view for the image to show whether
+    its echo ends where it does (``tip_room_sections`` sections of the echo test); nearer,
+    it may run on out of view like an interface, and is not taken for a needle."""
+    h, w = 200, 200
+    image = np.random.default_rng(8).integers(40, 120, (h, w)).astype(np.uint8)
+    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
+    tr = LineTracker(features=_MapSource(_line_map(h, w, (0, 10), (70, end_col), width=3)),
+                     params=LineTrackerParams(tip_room_sections=room))
+    est = tr.update(Frame(image=image, grid=g, t=0.0))
+    assert (est.status == Status.TRACKING) == tracked, est.reason
+    if not tracked:
+        assert "too near to see its echo end" in est.reason
+
+
 @pytest.mark.parametrize("echo_to_edge", [False, True])
 def test_a_learned_segment_whose_echo_goes_on_to_the_edge_shows_no_tip(echo_to_edge):
     """A learned map may mark only part of a bright interface (its probability fades along
@@ -461,7 +481,9 @@ def test_a_compressed_captures_margin_is_still_the_edge_of_the_view(quality):
 
 @pytest.mark.parametrize("name, value", [("edge_margin_mm", 2147483648.0),
                                          ("entry_margin_mm", float("nan")),
-                                         ("track_window_deg", 0.0)])
+                                         ("track_window_deg", 0.0),
+                                         ("tip_room_sections", -1),
+                                         ("tip_room_sections", 1000)])
 def test_settings_beyond_any_image_are_refused(name, value):
     """Issue 21's fuzz: edge_margin_mm=2^31 ran the edge search out of memory."""
     with pytest.raises(ValueError, match=name):
