@@ -22,7 +22,7 @@ needle's reverberation tail, the copies of its echo under the shaft, which fade 
 streak's own copies. So the echo is also read as the mean over a band across the line, from
 ``band_mm[0]`` above it to ``band_mm[1]`` below it (the echo with its tail), and its level
 over ``shaft_mm`` of shaft next to the entry (after the first ``window_mm``, where the map's
-evidence starts at the edge of the view): where that mean has fallen ``min_drop_sd`` spreads
+evidence starts at the edge of the view): where that mean has fallen ``band_fall_sd`` spreads
 below the shaft's level by the map's tip, the echo ends where it last stood within one spread
 of that level (the start of the fall, not its steepest point), provided the echo line itself
 goes on there within ``min_drop_sd`` spreads of its own level on the shaft (a streak; a needle
@@ -43,11 +43,16 @@ __all__ = ["EchoEndParams", "echo_end"]
 
 @dataclass(frozen=True)
 class EchoEndParams:
-    """See the module's doc (distances in mm along the needle's line)."""
+    """See the module's doc (distances in mm along the needle's line). ``band_fall_sd``: the
+    band's mean averages a few hundred pixels, so its own noise is a fraction of a speckle
+    spread, and layers of tissue differ by up to about one spread (``tissue_level`` in
+    :mod:`._inplane_line_echo`): a fall of one and a half spreads is more than a change of
+    layer, where the echo line's single profile needs ``min_drop_sd``."""
 
     window_mm: float = 1.5
     across_mm: float = 0.5
     min_drop_sd: float = 2.0
+    band_fall_sd: float = 1.5
     back_mm: float = 6.0
     ahead_mm: float = 1.0
     band_mm: tuple[float, float] = (-0.5, 3.0)
@@ -57,6 +62,7 @@ class EchoEndParams:
         lengths = (self.window_mm, self.across_mm, self.back_mm, self.ahead_mm, self.shaft_mm,
                    *self.band_mm)
         if not (self.window_mm > 0 and self.across_mm >= 0 and self.min_drop_sd > 0
+                and self.band_fall_sd > 0
                 and self.back_mm > 0 and self.ahead_mm >= 0 and self.shaft_mm > 0
                 and self.band_mm[0] < self.band_mm[1]
                 and all(abs(v) <= 100.0 for v in lengths)):  # a fraction of any image
@@ -114,7 +120,7 @@ def _band_fall(frame: Frame, start_mm: np.ndarray, direction: np.ndarray,
                tip_along_mm: float, p: EchoEndParams) -> float | None:
     """Where the mean over the band across the line (the echo with its reverberation tail)
     last stood within a spread of the shaft's level next to the entry, when by the map's tip
-    it has fallen ``min_drop_sd`` spreads below it."""
+    it has fallen ``band_fall_sd`` spreads below it."""
     step = float(min(frame.grid.spacing_mm))
     k = max(int(round(p.window_mm / step)), 1)
     shaft_to = p.window_mm + p.shaft_mm
@@ -131,7 +137,7 @@ def _band_fall(frame: Frame, start_mm: np.ndarray, direction: np.ndarray,
     level = float(np.median(profile[shaft]))
     spread = frame_spread(frame)
     trailing = _means(profile, k)  # element m ends at t[m + k - 1]
-    if trailing[-1] > level - p.min_drop_sd * spread:
+    if trailing[-1] > level - p.band_fall_sd * spread:
         return None  # by the map's tip the band has not fallen: no end seen
     within = np.flatnonzero(trailing >= level - spread)
     if not within.size:

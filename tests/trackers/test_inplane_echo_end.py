@@ -90,6 +90,28 @@ def test_a_needle_fading_as_a_whole_keeps_its_tip(seed):
     assert _band_fall(_frame(im), a, d, END, EchoEndParams()) is None
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_needle_crossing_into_darker_tissue_keeps_its_tip(seed):
+    """A saturated needle with its reverberation copies passes, 8 mm along, over a layer of
+    tissue two speckle spreads darker (more than layers usually differ): its band falls with
+    the tissue by about 1.3 spreads, under ``band_fall_sd`` (1.5), and the map's tip at the
+    needle's end stands; at a level of one spread the layer would have ended the needle."""
+    from needlenet.trackers._inplane_line_echo import frame_spread
+
+    a = np.array([2.0, 5.0])
+    d = np.array([np.cos(np.deg2rad(6.0)), np.sin(np.deg2rad(6.0))])
+    down = np.array([-d[1], d[0]])
+    im = _speckle(seed)
+    spread = frame_spread(_frame(im))
+    z, x = np.mgrid[:im.shape[0], :im.shape[1]] * SPACING
+    im[(x - a[0]) * d[0] + (z - a[1]) * d[1] > 8.0] -= 2.0 * spread
+    for off, grey in ((0.0, 255), (0.9, 255), (1.8, 230), (2.7, 200)):
+        _draw(im, a + off * down, a + END * d + off * down, grey)
+    frame = _frame(np.clip(im, 0, 255))
+    assert _band_fall(frame, a, d, END, EchoEndParams()) is None
+    assert _band_fall(frame, a, d, END, EchoEndParams(band_fall_sd=1.0)) is not None
+
+
 def test_speckle_alone_rarely_shows_an_end():
     """Along lines of speckle alone a drop of two spreads between 1.5 mm means is rare
     (seeded: 0 of 60 lines)."""
@@ -112,3 +134,5 @@ def test_settings_out_of_range_are_refused():
         EchoEndParams(min_drop_sd=-1.0)
     with pytest.raises(ValueError, match="echo end"):
         EchoEndParams(band_mm=(3.0, -0.5))
+    with pytest.raises(ValueError, match="echo end"):
+        EchoEndParams(band_fall_sd=0.0)
