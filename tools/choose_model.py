@@ -8,11 +8,13 @@ Per set, with learned features and the default tracker: (needle frames tracked w
 less needle frames tracked more than 3 mm off) over needle frames, less the share of
 needle-free frames reported ``tracking``: a confident wrong answer costs what a good one earns.
 
-- ``inplane``: the validation set (``needlenet/data/validation``) and six copies of it through a
+- ``inplane``: the validation set (``needlenet/data/validation``), six copies of it through a
   scanner's post-processing (``tools/postprocessed_set.py``: bilateral, median, non-local means,
-  unsharp masking, JPEG, Perona-Malik diffusion, each at its default strength), written once
+  unsharp masking, JPEG, Perona-Malik diffusion, each at its default strength) and three as
+  another recording would show it (``tools/recording_conditions.py``: receiver noise of 5 grey
+  levels, a gain falling by 40 grey levels over the depth, pixels twice as large), written once
   under ``--work`` (default ``runs/choice_sets``). A candidate passes when no set has more than
-  2% of its needle-free frames ``tracking`` and its mean score over the seven beats the shipped
+  2% of its needle-free frames ``tracking`` and its mean score over the ten beats the shipped
   model's.
 - ``volume``: the volume validation set (``needlenet/data/validation_volume``). A candidate
   passes when no needle-free volume is ``tracking`` and its score beats the shipped model's.
@@ -34,10 +36,13 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from postprocessed_set import DEFAULTS, write_copies  # noqa: E402
+from recording_conditions import converted  # noqa: E402
 
 from needlenet.bench import _external  # noqa: E402
 
 COPIES = ("bilateral", "median", "nlm", "sharpen", "jpeg", "diffusion")
+# (name, recording_conditions operation, value)
+CONDITIONS = (("noise5", "noise", 5.0), ("ramp_down", "ramp", -40.0), ("pixels2", "scale", 2.0))
 MAX_FALSE = 0.02  # in-plane: the issue's needle-free target, on every set
 
 
@@ -50,6 +55,27 @@ def postprocessed_copies(src: Path, work: Path) -> list[Path]:
         if not all((dst / f.name).exists() for f in files):
             dst.mkdir(parents=True, exist_ok=True)
             write_copies(files, dst, op, DEFAULTS[op])
+        out.append(dst)
+    return out
+
+
+def condition_copies(src: Path, work: Path) -> list[Path]:
+    """The copies of ``src`` under each of :data:`CONDITIONS`, written under ``work`` once
+    (seeded by file name, as ``tools/recording_conditions.py`` writes them)."""
+    import zlib
+
+    import synth
+
+    files = sorted(src.glob("*.npz"))
+    out = []
+    for name, op, value in CONDITIONS:
+        dst = work / name
+        if not all((dst / f.name).exists() for f in files):
+            dst.mkdir(parents=True, exist_ok=True)
+            for f in files:
+                rng = np.random.default_rng(zlib.crc32(f.name.encode()))
+                synth.save_sequence(converted(synth.load_sequence(f), op, value, rng),
+                                    dst / f.name, overwrite=True)
         out.append(dst)
     return out
 
@@ -76,7 +102,8 @@ def main(argv=None) -> int:
             ap.error(f"{c}: no such model file")
     data = ROOT / "needlenet" / "data"
     if a.modality == "inplane":
-        sets = [data / "validation"] + postprocessed_copies(data / "validation", Path(a.work))
+        sets = [data / "validation"] + postprocessed_copies(data / "validation", Path(a.work)) \
+            + condition_copies(data / "validation", Path(a.work))
     else:
         sets = [data / "validation_volume"]
     names = [s.name for s in sets]

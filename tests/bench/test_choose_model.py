@@ -50,3 +50,23 @@ def test_post_processed_copies_are_written_once(tmp_path):
         assert np.mean(copy.images != seq.images) > 0.05
     tool.postprocessed_copies(src, tmp_path / "work")
     assert [(d / "a.npz").stat().st_mtime_ns for d in dirs] == stamps
+
+
+def test_recording_condition_copies_are_written_once_as_the_tool_writes_them(tmp_path):
+    src = tmp_path / "src"
+    src.mkdir()
+    seq = synth.generate("inplane", seed=4, frames=2, width_mm=12, depth_mm=12)
+    synth.save_sequence(seq, src / "a.npz")
+    tool = _tool()
+    dirs = tool.condition_copies(src, tmp_path / "work")
+    assert [d.name for d in dirs] == [name for name, _, _ in tool.CONDITIONS]
+    rc = load_tool("recording_conditions")
+    for d, (_, op, value) in zip(dirs, tool.CONDITIONS, strict=True):
+        out = tmp_path / f"by_tool_{d.name}"
+        assert rc.main([str(src), str(out), op, str(value)]) == 0
+        a, b = synth.load_sequence(d / "a.npz"), synth.load_sequence(out / "a.npz")
+        np.testing.assert_array_equal(a.images, b.images)
+        np.testing.assert_allclose(a.spacing_mm, b.spacing_mm)
+    stamps = [(d / "a.npz").stat().st_mtime_ns for d in dirs]
+    tool.condition_copies(src, tmp_path / "work")
+    assert [(d / "a.npz").stat().st_mtime_ns for d in dirs] == stamps
