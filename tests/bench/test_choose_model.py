@@ -34,11 +34,17 @@ def test_the_volume_score_counts_good_wrong_and_needle_free_volumes():
     assert needle == 18 and -1.0 <= score <= 1.0
 
 
-def test_post_processed_copies_are_written_once(tmp_path):
+def _one_sequence_set(tmp_path, seed: int):
+    """A set (folder) holding one small seeded in-plane sequence ``a.npz``: (folder, sequence)."""
     src = tmp_path / "src"
     src.mkdir()
-    seq = synth.generate("inplane", seed=3, frames=2, width_mm=12, depth_mm=12)
+    seq = synth.generate("inplane", seed=seed, frames=2, width_mm=12, depth_mm=12)
     synth.save_sequence(seq, src / "a.npz")
+    return src, seq
+
+
+def test_post_processed_copies_are_written_once(tmp_path):
+    src, seq = _one_sequence_set(tmp_path, 3)
     tool = _tool()
     dirs = tool.postprocessed_copies(src, tmp_path / "work")
     assert [d.name for d in dirs] == list(tool.COPIES)
@@ -53,10 +59,7 @@ def test_post_processed_copies_are_written_once(tmp_path):
 
 
 def test_recording_condition_copies_are_written_once_as_the_tool_writes_them(tmp_path):
-    src = tmp_path / "src"
-    src.mkdir()
-    seq = synth.generate("inplane", seed=4, frames=2, width_mm=12, depth_mm=12)
-    synth.save_sequence(seq, src / "a.npz")
+    src, _ = _one_sequence_set(tmp_path, 4)
     tool = _tool()
     dirs = tool.condition_copies(src, tmp_path / "work")
     assert [d.name for d in dirs] == [name for name, _, _ in tool.CONDITIONS]
