@@ -35,8 +35,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
+import recording_conditions  # noqa: E402
 from postprocessed_set import DEFAULTS, write_copies  # noqa: E402
-from recording_conditions import converted  # noqa: E402
 
 from needlenet.bench import _external  # noqa: E402
 
@@ -61,21 +61,13 @@ def postprocessed_copies(src: Path, work: Path) -> list[Path]:
 
 def condition_copies(src: Path, work: Path) -> list[Path]:
     """The copies of ``src`` under each of :data:`CONDITIONS`, written under ``work`` once
-    (seeded by file name, as ``tools/recording_conditions.py`` writes them)."""
-    import zlib
-
-    import synth
-
+    (by ``tools/recording_conditions.py``)."""
     files = sorted(src.glob("*.npz"))
     out = []
     for name, op, value in CONDITIONS:
         dst = work / name
         if not all((dst / f.name).exists() for f in files):
-            dst.mkdir(parents=True, exist_ok=True)
-            for f in files:
-                rng = np.random.default_rng(zlib.crc32(f.name.encode()))
-                synth.save_sequence(converted(synth.load_sequence(f), op, value, rng),
-                                    dst / f.name, overwrite=True)
+            recording_conditions.write_copies(files, dst, op, value, overwrite=True)
         out.append(dst)
     return out
 

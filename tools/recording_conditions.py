@@ -86,6 +86,16 @@ def converted(seq, op: str, value: float, rng: np.random.Generator):
     return dataclasses.replace(seq, images=small, spacing_mm=sp, origin_mm=origin)
 
 
+def write_copies(files, dst: Path, op: str, value: float, overwrite: bool = False) -> None:
+    """Each sequence file of ``files`` under ``op`` at ``value``, written to ``dst`` under its
+    own name; the random stream of each is seeded by its file name."""
+    dst.mkdir(parents=True, exist_ok=True)
+    for f in files:
+        rng = np.random.default_rng(zlib.crc32(f.name.encode()))
+        synth.save_sequence(converted(synth.load_sequence(f), op, value, rng), dst / f.name,
+                            overwrite=overwrite)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("src")
@@ -105,11 +115,7 @@ def main(argv=None) -> int:
         ap.error(f"guide gray must lie in 1-254 (0 is black, 255 saturation), got {a.value}")
     if dst.exists() and any(dst.iterdir()):
         ap.error(f"{dst} holds files; give a new directory")
-    dst.mkdir(parents=True, exist_ok=True)
-    for f in files:
-        rng = np.random.default_rng(zlib.crc32(f.name.encode()))
-        synth.save_sequence(converted(synth.load_sequence(f), a.op, a.value, rng),
-                            dst / f.name)
+    write_copies(files, dst, a.op, a.value)
     print(f"wrote {len(files)} sequences to {dst}")
     return 0
 

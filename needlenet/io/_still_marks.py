@@ -103,11 +103,12 @@ def fill_still_marks(images, meta: dict) -> np.ndarray | FrameStack:
         return cv2.inpaint(np.ascontiguousarray(frame), mask, INPAINT_RADIUS_PX,
                            cv2.INPAINT_TELEA)
 
+    n = int(np.count_nonzero(mark))
     meta.setdefault("warnings", []).append(
-        f"{int(np.count_nonzero(mark))} pixels keep one gray level through the first {FRAMES} "
-        "frames while the echo around them changes: marks drawn over the image (a biopsy "
-        "guide, text), filled in from the echo around them in every frame")
-    meta["still_marks_px"] = int(np.count_nonzero(mark))
+        f"{n} pixels keep one gray level through the first {FRAMES} frames while the echo "
+        "around them changes: marks drawn over the image (a biopsy guide, text), filled in "
+        "from the echo around them in every frame")
+    meta["still_marks_px"] = n
     if is_frame_stack(images):
         return FrameStack(lambda i: fill(images.frame(i)), len(images), images.shape[1:],
                           images.dtype, source=images.source)
