@@ -12,6 +12,10 @@ the view and tells, on each later frame, how much longer the same mark is (a mar
 within ``near_mm`` of the first sighting's middle; not its direction: a mark a few
 millimetres long at the edge of a sector is a blob whose line's direction is a guess); the
 `line` tracker takes it for a needle once it has grown by ``growth_mm``.
+
+The same holds for a new track on a line a little longer than a needle segment's least: it
+stays only if it grows within a few frames. :class:`StillMarks` keeps those that did not,
+so that the tracker takes a line there again only once it is longer than the mark was.
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ import numpy as np
 
 from ..backends import NeedleLine
 
-__all__ = ["GrowingMarkParams", "GrowingMark"]
+__all__ = ["GrowingMarkParams", "GrowingMark", "StillMarks"]
 
 
 @dataclass(frozen=True)
@@ -80,3 +84,42 @@ class GrowingMark:
         self._middle = 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
         self._length = float(seg.length_mm)
         return 0.0
+
+
+_MAX_MARKS = 32  # still marks remembered: a bound on memory, not a setting
+# a line within this of a still mark's direction is that mark seen again (the direction of a
+# few millimetres of map jitters by some degrees; a line crossing the mark is another line)
+_SAME_LINE_DEG = 20.0
+
+
+class StillMarks:
+    """Short lines that were tracked as new needles but never grew: tissue. A line through
+    one of them (passing within ``near_mm`` of its middle) is taken for a needle only once its
+    far end lies ``growth_mm`` beyond the furthest the mark's reached (see
+    :meth:`~._inplane_line_confirmed.ConfirmedTrack._proven`)."""
+
+    def __init__(self, params: GrowingMarkParams | None = None):
+        self.params = GrowingMarkParams() if params is None else params
+        self._marks: list[tuple[np.ndarray, ...]] = []  # (middle, direction, furthest end)
+
+    def add(self, seg: NeedleLine, far_end_mm: np.ndarray) -> None:
+        """``seg``, oriented entry to tip, whose far end reached ``far_end_mm`` at the
+        furthest."""
+        if len(self._marks) >= _MAX_MARKS:
+            del self._marks[0]  # the oldest goes first
+        middle = 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
+        self._marks.append((middle, np.asarray(seg.direction, float).copy(),
+                            np.asarray(far_end_mm, float).copy()))
+
+    def advance_mm(self, seg: NeedleLine) -> float | None:
+        """How far the far end of ``seg`` (oriented entry to tip) lies beyond the furthest end
+        of the still mark it runs along (through its middle, within ``near_mm``, and within
+        ``_SAME_LINE_DEG`` of its direction), along ``seg``; None when it runs along none."""
+        for middle, direction, far in self._marks:
+            if abs(float(direction @ seg.direction)) < np.cos(np.deg2rad(_SAME_LINE_DEG)):
+                continue
+            t = np.clip((middle - seg.start_mm) @ seg.direction, 0.0, seg.length_mm)
+            if float(np.linalg.norm(seg.start_mm + t * seg.direction - middle)) <= \
+                    self.params.near_mm:
+                return float((np.asarray(seg.end_mm, float) - far) @ seg.direction)
+        return None

@@ -8,7 +8,11 @@ needle only when its supported segment is at least ``min_length_mm`` long with m
 or above the level that marks a needle (probability 0.5 for a learned map; for the classical
 map ``classical_level`` local standard deviations above the surrounding tissue), or, while no
 needle is tracked, when a shorter learned mark entering through the edge of the view has grown
-where it was first seen (a needle coming in; :mod:`._inplane_growing`). The tip is the
+where it was first seen (a needle coming in; :mod:`._inplane_growing`). A new learned track
+on a segment shorter than ``settled_length_mm`` must grow as well: one that has not grown within
+``confirm_after_frames`` frames is a still tissue line, dropped and not taken again until it
+grows (a needle-like line in tissue where no needle is, a few millimetres under the skin, is
+otherwise tracked for as long as it is in view). The tip is the
 segment's end away from the entry, refined by the tip map where the source has one (with
 classical features: moved on to where the echo along the line ends) and bounded by where the
 needle's echo ends in the image (the streak of unfocused imaging past a tip looks like shaft;
@@ -78,7 +82,7 @@ from ._inplane_geometry import (
     entry_to_tip,
     on_line,
 )
-from ._inplane_growing import GrowingMark
+from ._inplane_growing import GrowingMark, StillMarks
 from ._inplane_line_confirmed import ConfirmedTrack
 from ._inplane_line_echo import echo_along
 from ._inplane_line_filter import TipKalman
@@ -129,6 +133,7 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         self._still = StillLines(self.params.still)
         self._growing = GrowingMark(self.params.growing)
         self._reappearing = GrowingMark(self.params.growing)  # a line after a needle left
+        self._still_marks = StillMarks(self.params.growing)  # short new lines that never grew
         self._held_confirmed = False  # this track has been confirmed once
         self._forget()
         self._departed: tuple | None = None  # the confirmed needle last forgotten
@@ -148,6 +153,7 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         self._out_of_sight = False  # the tracked needle was last seen running out of view
         self._since_full = 0
         self._held_confirmed = False  # this track has been confirmed once
+        self._unproven = None  # a new track on a short line, until it grows
 
     @property
     def dt_s(self) -> float:
@@ -390,6 +396,9 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         if new_line:
             self._reappearing.clear()
         seg = self._orient(seg, frame, inner)
+        reason = self._proven(seg, new_line, frame.t)
+        if reason:
+            return self._missed(frame, seg, reason)
         reach, runs_on = self._reach_mm(seg, wm, frame, inner)
         if runs_on and self._confirmed:
             # the confirmed needle's weaker continuation runs on to the edge: where the map

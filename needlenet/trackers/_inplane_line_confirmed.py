@@ -7,6 +7,8 @@ as an insertion does. A mixin of :class:`~._inplane_line.LineTracker`, whose sta
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..backends import NeedleLine, chi2_gate
 from ._inplane_geometry import on_line
 
@@ -85,3 +87,54 @@ class ConfirmedTrack:
             return ""
         return (f"no needle: the {seg.length_mm:.0f} mm line appeared elsewhere when the needle "
                 "tracked was lost; it is taken once it grows where it enters, as an insertion")
+
+    def _proven(self, seg: NeedleLine, new_line: bool, t: float) -> str:
+        """Why ``seg`` (oriented entry to tip) is not (or no longer) taken for a needle: ''
+        when it may be. A new learned track on a segment shorter than ``settled_length_mm``
+        must grow, as an insertion does: it is dropped as tissue when its far end has not
+        advanced by ``growing.growth_mm`` along its line (nor the segment come to be
+        ``settled_length_mm`` long) ``confirm_after_frames`` frame periods after it was first
+        taken, and a new line along such a still mark is taken only once its far end lies
+        ``growing.growth_mm`` beyond the furthest the mark's reached. The far end, not the
+        length, tells the advance: beside an interface the needle's own segment may slide
+        along as its tip advances; nor the tip measured, which on a still line may jump by a
+        millimetre between the segment's end and the tip map's maximum. Learned features
+        only: a faint needle's line-contrast map splits into an entering piece that keeps its
+        place and a distal piece that advances (``test_inplane_line_split.py``), so with
+        classical features the piece tracked may show no advance of an insertion."""
+        p = self.params
+        g = p.growing.growth_mm
+        if self.features.kind != "learned":
+            return ""
+        if new_line:
+            self._unproven = None
+            beyond = self._still_marks.advance_mm(seg)
+            if beyond is not None and beyond < g:
+                return (f"no needle: the {seg.length_mm:.0f} mm line lies on a short line that "
+                        "stood still; it is taken once it grows, as an insertion")
+            if seg.length_mm < p.settled_length_mm:
+                self._unproven = _Unproven(seg, t)
+            return ""
+        u = self._unproven
+        if u is None:
+            return ""
+        advance = float((seg.end_mm - u.end0_mm) @ seg.direction)
+        u.seg, u.furthest_mm = seg, max(u.furthest_mm, advance)
+        if advance >= g or seg.length_mm >= p.settled_length_mm:
+            self._unproven = None
+            return ""
+        if t - u.t0 < (p.confirm_after_frames - 0.5) * self.dt_s:
+            return ""
+        self._still_marks.add(seg, u.end0_mm + max(u.furthest_mm, 0.0) * seg.direction)
+        self._forget()
+        return (f"no needle: the {seg.length_mm:.0f} mm line has not grown in "
+                f"{p.confirm_after_frames} frames: a still tissue line, not an insertion")
+
+
+class _Unproven:
+    """A new track on a short segment, until it grows: its first far end and since."""
+
+    def __init__(self, seg: NeedleLine, t: float):
+        self.seg, self.t0 = seg, t
+        self.end0_mm = np.asarray(seg.end_mm, float).copy()
+        self.furthest_mm = 0.0

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from needlenet.backends import NeedleLine
-from needlenet.trackers._inplane_growing import GrowingMark, GrowingMarkParams
+from needlenet.trackers._inplane_growing import GrowingMark, GrowingMarkParams, StillMarks
 
 
 def _mark(start, angle_deg, length_mm):
@@ -48,6 +48,21 @@ def test_a_sighting_is_forgotten_after_frames_without_the_mark():
     g.missed()
     g.missed()
     assert g.growth_mm(_mark([5.0, 1.0], 40.0, 6.0)) == 0.0
+
+
+def test_a_still_mark_holds_the_lines_along_it_only():
+    marks = StillMarks()
+    mark = _mark([5.0, 1.0], 40.0, 6.0)
+    marks.add(mark, mark.end_mm + 0.3 * mark.direction)  # its end reached 0.3 mm further
+    # the same line 2 mm longer: its end 1.7 mm beyond the mark's furthest
+    assert marks.advance_mm(_mark([5.0, 1.0], 40.0, 8.0)) == pytest.approx(1.7)
+    # a line 15 degrees off through its middle (7.3, 2.9) is the mark seen again; one 30
+    # degrees off crosses it: another line
+    assert marks.advance_mm(_mark([6.1, 1.6], 55.0, 3.0)) is not None
+    assert marks.advance_mm(_mark([6.3, 1.2], 70.0, 4.0)) is None
+    # a parallel line 3 mm beside it (more than near_mm = 2 mm)
+    n = np.array([-np.sin(np.deg2rad(40.0)), np.cos(np.deg2rad(40.0))])
+    assert marks.advance_mm(_mark(np.array([5.0, 1.0]) + 3.0 * n, 40.0, 6.0)) is None
 
 
 @pytest.mark.parametrize("name, value", [("growth_mm", 0.0), ("near_mm", -1.0),
