@@ -37,17 +37,23 @@ class GrowingMarkParams:
     still mark). ``near_mm``: a later mark that passes this close to the first sighting's
     middle is the same mark (the `line` tracker's ``track_window_mm``: a needle's echo band
     with the point spread of a phased array a few centimetres deep).
-    ``forget_after_frames``: frames without the mark after which its sighting is dropped."""
+    ``forget_after_frames``: frames without the mark after which its sighting is dropped.
+    ``prove_within_s``: a new track on a short line that has not grown by ``growth_mm`` in
+    this time is a still line (0.5 s: a needle coming in at 2 mm/s, a slow hand, has advanced
+    a millimetre by then)."""
 
     min_length_mm: float = 2.0
     growth_mm: float = 1.0
     near_mm: float = 2.0
     forget_after_frames: int = 5
+    prove_within_s: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("min_length_mm", "growth_mm", "near_mm"):
             if not 0.0 < getattr(self, name) <= 100.0:
                 raise ValueError(f"{name} must lie in (0, 100] mm, got {getattr(self, name)}")
+        if not 0.0 < self.prove_within_s <= 60.0:
+            raise ValueError(f"prove_within_s must lie in (0, 60] s, got {self.prove_within_s}")
         if self.forget_after_frames < 1:
             raise ValueError(f"forget_after_frames must be >= 1, got "
                              f"{self.forget_after_frames}")
@@ -93,33 +99,36 @@ _SAME_LINE_DEG = 20.0
 
 
 class StillMarks:
-    """Short lines that were tracked as new needles but never grew: tissue. A line through
-    one of them (passing within ``near_mm`` of its middle) is taken for a needle only once its
-    far end lies ``growth_mm`` beyond the furthest the mark's reached (see
+    """Short lines that were tracked as new needles but never grew: tissue. A line along one
+    of them (through its middle, within ``near_mm``, and within ``_SAME_LINE_DEG`` of its
+    direction) is taken for a needle only once its far end or its measured tip lies
+    ``growth_mm`` beyond the furthest the mark's reached (see
     :meth:`~._inplane_line_confirmed.ConfirmedTrack._proven`)."""
 
     def __init__(self, params: GrowingMarkParams | None = None):
         self.params = GrowingMarkParams() if params is None else params
-        self._marks: list[tuple[np.ndarray, ...]] = []  # (middle, direction, furthest end)
+        self._marks: list[tuple[np.ndarray, ...]] = []  # (middle, direction, far end, far tip)
 
-    def add(self, seg: NeedleLine, far_end_mm: np.ndarray) -> None:
-        """``seg``, oriented entry to tip, whose far end reached ``far_end_mm`` at the
-        furthest."""
+    def add(self, seg: NeedleLine, far_end_mm: np.ndarray, far_tip_mm: np.ndarray) -> None:
+        """``seg``, oriented entry to tip, whose far end and measured tip reached
+        ``far_end_mm`` and ``far_tip_mm`` at the furthest."""
         if len(self._marks) >= _MAX_MARKS:
             del self._marks[0]  # the oldest goes first
         middle = 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
         self._marks.append((middle, np.asarray(seg.direction, float).copy(),
-                            np.asarray(far_end_mm, float).copy()))
+                            np.asarray(far_end_mm, float).copy(),
+                            np.asarray(far_tip_mm, float).copy()))
 
-    def advance_mm(self, seg: NeedleLine) -> float | None:
-        """How far the far end of ``seg`` (oriented entry to tip) lies beyond the furthest end
-        of the still mark it runs along (through its middle, within ``near_mm``, and within
-        ``_SAME_LINE_DEG`` of its direction), along ``seg``; None when it runs along none."""
-        for middle, direction, far in self._marks:
+    def advance_mm(self, seg: NeedleLine, tip_mm: np.ndarray) -> float | None:
+        """How far the far end of ``seg`` (oriented entry to tip), or ``tip_mm`` measured on
+        it, lies beyond the furthest of the still mark it runs along, along ``seg``; None when
+        it runs along none."""
+        for middle, direction, far_end, far_tip in self._marks:
             if abs(float(direction @ seg.direction)) < np.cos(np.deg2rad(_SAME_LINE_DEG)):
                 continue
             t = np.clip((middle - seg.start_mm) @ seg.direction, 0.0, seg.length_mm)
             if float(np.linalg.norm(seg.start_mm + t * seg.direction - middle)) <= \
                     self.params.near_mm:
-                return float((np.asarray(seg.end_mm, float) - far) @ seg.direction)
+                return max(float((np.asarray(seg.end_mm, float) - far_end) @ seg.direction),
+                           float((np.asarray(tip_mm, float) - far_tip) @ seg.direction))
         return None

@@ -9,10 +9,10 @@ or above the level that marks a needle (probability 0.5 for a learned map; for t
 map ``classical_level`` local standard deviations above the surrounding tissue), or, while no
 needle is tracked, when a shorter learned mark entering through the edge of the view has grown
 where it was first seen (a needle coming in; :mod:`._inplane_growing`). A new learned track
-on a segment shorter than ``settled_length_mm`` must grow as well: one that has not grown within
-``confirm_after_frames`` frames is a still tissue line, dropped and not taken again until it
-grows (a needle-like line in tissue where no needle is, a few millimetres under the skin, is
-otherwise tracked for as long as it is in view). The tip is the
+on a segment shorter than ``settled_length_mm`` must grow as well: one that has not grown by a
+millimetre in half a second (``growing.prove_within_s``) is a still tissue line, dropped and
+not taken again until it grows (a needle-like line in tissue where no needle is, a few
+millimetres under the skin, is otherwise tracked for as long as it is in view). The tip is the
 segment's end away from the entry, refined by the tip map where the source has one (with
 classical features: moved on to where the echo along the line ends) and bounded by where the
 needle's echo ends in the image (the streak of unfocused imaging past a tip looks like shaft;
@@ -396,9 +396,6 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         if new_line:
             self._reappearing.clear()
         seg = self._orient(seg, frame, inner)
-        reason = self._proven(seg, new_line, frame.t)
-        if reason:
-            return self._missed(frame, seg, reason)
         reach, runs_on = self._reach_mm(seg, wm, frame, inner)
         if runs_on and self._confirmed:
             # the confirmed needle's weaker continuation runs on to the edge: where the map
@@ -408,6 +405,9 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
                 f"no needle tip in view: the {seg.length_mm:.0f} mm needle's weaker "
                 "continuation on the map runs on to the edge of the view"), keep=True)
         tip_mm, used_tip_map, at_echo_end = self._tip(frame, seg, lik.tip, map_grid, reach)
+        reason = self._proven(seg, tip_mm, new_line, frame.t)
+        if reason:
+            return self._missed(frame, seg, reason)
         if priority(seg):  # it enters through the edge of the view: the insertion's axis
             self._axis = (0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy())
         self._misses = 0

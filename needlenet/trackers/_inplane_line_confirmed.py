@@ -88,53 +88,65 @@ class ConfirmedTrack:
         return (f"no needle: the {seg.length_mm:.0f} mm line appeared elsewhere when the needle "
                 "tracked was lost; it is taken once it grows where it enters, as an insertion")
 
-    def _proven(self, seg: NeedleLine, new_line: bool, t: float) -> str:
-        """Why ``seg`` (oriented entry to tip) is not (or no longer) taken for a needle: ''
-        when it may be. A new learned track on a segment shorter than ``settled_length_mm``
-        must grow, as an insertion does: it is dropped as tissue when its far end has not
-        advanced by ``growing.growth_mm`` along its line (nor the segment come to be
-        ``settled_length_mm`` long) ``confirm_after_frames`` frame periods after it was first
-        taken, and a new line along such a still mark is taken only once its far end lies
-        ``growing.growth_mm`` beyond the furthest the mark's reached. The far end, not the
-        length, tells the advance: beside an interface the needle's own segment may slide
-        along as its tip advances; nor the tip measured, which on a still line may jump by a
-        millimetre between the segment's end and the tip map's maximum. Learned features
-        only: a faint needle's line-contrast map splits into an entering piece that keeps its
-        place and a distal piece that advances (``test_inplane_line_split.py``), so with
-        classical features the piece tracked may show no advance of an insertion."""
+    def _proven(self, seg: NeedleLine, tip_mm: np.ndarray, new_line: bool, t: float) -> str:
+        """Why ``seg`` (oriented entry to tip), its tip measured at ``tip_mm``, is not (or no
+        longer) taken for a needle: '' when it may be. A new learned track on a segment
+        shorter than ``settled_length_mm`` must grow, as an insertion does, by
+        ``growing.growth_mm`` along its line: its segment's far end, or its measured tip on
+        two frames in a row. One that has not (nor come to be ``settled_length_mm`` long)
+        ``growing.prove_within_s`` after it was first taken, and at least
+        ``confirm_after_frames`` frame periods, is dropped as a still tissue line; a new line
+        along it is taken once its far end or tip lies ``growing.growth_mm`` beyond the
+        furthest the still line's reached, and is then a needle that has grown. Either
+        measure alone fails somewhere: the segment of a needle coming in bright at a corner
+        runs millimetres past its tip and may keep its far end while the tip advances, and
+        beside an interface it may slide along; the tip measured on a still line may jump by
+        a millimetre between the segment's end and the tip map's maximum on alternate frames.
+        Learned features only: a faint needle's line-contrast map splits into an entering
+        piece that keeps its place and a distal piece that advances
+        (``test_inplane_line_split.py``), so with classical features the piece tracked may
+        show no advance of an insertion."""
         p = self.params
         g = p.growing.growth_mm
         if self.features.kind != "learned":
             return ""
         if new_line:
             self._unproven = None
-            beyond = self._still_marks.advance_mm(seg)
+            beyond = self._still_marks.advance_mm(seg, tip_mm)
             if beyond is not None and beyond < g:
                 return (f"no needle: the {seg.length_mm:.0f} mm line lies on a short line that "
                         "stood still; it is taken once it grows, as an insertion")
-            if seg.length_mm < p.settled_length_mm:
-                self._unproven = _Unproven(seg, t)
+            if beyond is None and seg.length_mm < p.settled_length_mm:
+                self._unproven = _Unproven(seg, tip_mm, t)
             return ""
         u = self._unproven
         if u is None:
             return ""
-        advance = float((seg.end_mm - u.end0_mm) @ seg.direction)
-        u.seg, u.furthest_mm = seg, max(u.furthest_mm, advance)
-        if advance >= g or seg.length_mm >= p.settled_length_mm:
+        end = float((seg.end_mm - u.end0_mm) @ seg.direction)
+        tip = float((tip_mm - u.tip0_mm) @ seg.direction)
+        tip_grown = tip >= g and u.tip_grown
+        u.seg, u.tip_grown = seg, tip >= g
+        u.far_end_mm, u.far_tip_mm = max(u.far_end_mm, end), max(u.far_tip_mm, tip)
+        if end >= g or tip_grown or seg.length_mm >= p.settled_length_mm:
             self._unproven = None
             return ""
-        if t - u.t0 < (p.confirm_after_frames - 0.5) * self.dt_s:
+        if t - u.t0 < max((p.confirm_after_frames - 0.5) * self.dt_s,
+                          p.growing.prove_within_s - 0.5 * self.dt_s):
             return ""
-        self._still_marks.add(seg, u.end0_mm + max(u.furthest_mm, 0.0) * seg.direction)
+        self._still_marks.add(seg, u.end0_mm + max(u.far_end_mm, 0.0) * seg.direction,
+                              u.tip0_mm + max(u.far_tip_mm, 0.0) * seg.direction)
         self._forget()
         return (f"no needle: the {seg.length_mm:.0f} mm line has not grown in "
-                f"{p.confirm_after_frames} frames: a still tissue line, not an insertion")
+                f"{t - u.t0:.2f} s: a still tissue line, not an insertion")
 
 
 class _Unproven:
-    """A new track on a short segment, until it grows: its first far end and since."""
+    """A new track on a short segment, until it grows: its first far end and tip, and the
+    furthest each has advanced since."""
 
-    def __init__(self, seg: NeedleLine, t: float):
+    def __init__(self, seg: NeedleLine, tip_mm: np.ndarray, t: float):
         self.seg, self.t0 = seg, t
         self.end0_mm = np.asarray(seg.end_mm, float).copy()
-        self.furthest_mm = 0.0
+        self.tip0_mm = np.asarray(tip_mm, float).copy()
+        self.far_end_mm = self.far_tip_mm = 0.0
+        self.tip_grown = False  # the tip was growth_mm on on the frame before

@@ -50,10 +50,7 @@ class LineTrackerParams:
     in a row after which the track is confirmed (M-of-N track confirmation): a confirmed
     needle is not replaced by a line from its entry longer than it could have grown (see the
     tracker's doc), an unconfirmed first mark may be, its length along a guessed direction
-    being no measure of the needle's; and a new track on a line shorter than
-    ``settled_length_mm`` that has not grown by ``growing.growth_mm`` within that many frame
-    periods is dropped as a still tissue line (:meth:`~._inplane_line_confirmed.
-    ConfirmedTrack._proven`).
+    being no measure of the needle's.
     ``forget_after_frames``: frames without a needle after which the track
     is forgotten. ``needle_radius_mm``: maps that mark the wall facing the probe (learned
     ``target_reference = "wall"`` and the classical echo) are moved by it to the centre line
@@ -82,8 +79,9 @@ class LineTrackerParams:
     needle's echo ends in the image is moved back there (:mod:`._inplane_echo_end`).
     ``still``: lines seen standing still beside the advancing needle are tissue
     (:mod:`._inplane_still`). ``growing``: a learned mark shorter than ``min_length_mm`` is
-    taken for a needle coming in once it has grown where it enters, and a short new track
-    must grow to stay (:mod:`._inplane_growing`).
+    taken for a needle coming in once it has grown where it enters, and a new track on a line
+    shorter than ``settled_length_mm`` must grow within ``growing.prove_within_s`` to stay
+    (:meth:`~._inplane_line_confirmed.ConfirmedTrack._proven`).
     ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
     not read (the mask's step is no echo; the shipped in-plane model marks it up to 1.5 mm
     in, measured on needle-free synth frames with sector masks and margins)."""

@@ -53,20 +53,28 @@ def test_a_sighting_is_forgotten_after_frames_without_the_mark():
 def test_a_still_mark_holds_the_lines_along_it_only():
     marks = StillMarks()
     mark = _mark([5.0, 1.0], 40.0, 6.0)
-    marks.add(mark, mark.end_mm + 0.3 * mark.direction)  # its end reached 0.3 mm further
+    # its far end reached 0.3 mm further, its measured tip 0.5 mm
+    marks.add(mark, mark.end_mm + 0.3 * mark.direction, mark.end_mm + 0.5 * mark.direction)
     # the same line 2 mm longer: its end 1.7 mm beyond the mark's furthest
-    assert marks.advance_mm(_mark([5.0, 1.0], 40.0, 8.0)) == pytest.approx(1.7)
+    longer = _mark([5.0, 1.0], 40.0, 8.0)
+    assert marks.advance_mm(longer, longer.end_mm) == pytest.approx(1.7)
+    # or its tip measured 3 mm on: 2.5 mm beyond the mark's furthest tip
+    assert marks.advance_mm(longer, longer.end_mm + longer.direction) == pytest.approx(2.5)
     # a line 15 degrees off through its middle (7.3, 2.9) is the mark seen again; one 30
     # degrees off crosses it: another line
-    assert marks.advance_mm(_mark([6.1, 1.6], 55.0, 3.0)) is not None
-    assert marks.advance_mm(_mark([6.3, 1.2], 70.0, 4.0)) is None
+    other = _mark([6.1, 1.6], 55.0, 3.0)
+    assert marks.advance_mm(other, other.end_mm) is not None
+    crossing = _mark([6.3, 1.2], 70.0, 4.0)
+    assert marks.advance_mm(crossing, crossing.end_mm) is None
     # a parallel line 3 mm beside it (more than near_mm = 2 mm)
     n = np.array([-np.sin(np.deg2rad(40.0)), np.cos(np.deg2rad(40.0))])
-    assert marks.advance_mm(_mark(np.array([5.0, 1.0]) + 3.0 * n, 40.0, 6.0)) is None
+    beside = _mark(np.array([5.0, 1.0]) + 3.0 * n, 40.0, 6.0)
+    assert marks.advance_mm(beside, beside.end_mm) is None
 
 
 @pytest.mark.parametrize("name, value", [("growth_mm", 0.0), ("near_mm", -1.0),
-                                         ("min_length_mm", 1e3), ("forget_after_frames", 0)])
+                                         ("min_length_mm", 1e3), ("forget_after_frames", 0),
+                                         ("prove_within_s", 0.0)])
 def test_settings_out_of_range_are_refused(name, value):
     with pytest.raises(ValueError, match=name):
         GrowingMarkParams(**{name: value})
