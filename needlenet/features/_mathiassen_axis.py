@@ -130,6 +130,15 @@ class MathiassenParams:
         lo, hi = self.full_range_deg
         if not 0.0 < lo < hi < 90.0:
             raise ValueError(f"full_range_deg must lie in (0, 90), got {self.full_range_deg}")
+        # the tip features' strip across the axis spans +-gpp_size_mm / 2 (K^G''): it must hold
+        # the background band and the K^SQ kernel's width
+        need = 2.0 * max(abs(self.background_band_mm[0]), abs(self.background_band_mm[1]),
+                         0.5 * self.sq_width_mm)
+        if self.gpp_size_mm < need:
+            raise ValueError(f"MathiassenParams.gpp_size_mm must be at least {need:g} mm (the "
+                             f"strip across the axis holds the background band "
+                             f"{tuple(self.background_band_mm)} mm and the K^SQ kernel's "
+                             f"{self.sq_width_mm:g} mm), got {self.gpp_size_mm}")
 
 
 _MAX_MM = 100.0  # no distance of the search or the features spans more of an image

@@ -153,7 +153,10 @@ def tip_features(image: np.ndarray, previous: np.ndarray | None, grid: Grid,
     p = MathiassenParams() if params is None else params
     step = _step_mm(grid)
     x = _axis_samples(grid, axis)
-    half = _n(p.gpp_size_mm, step) // 2
+    # +-gpp_size_mm / 2 across the axis (K^G''), and at least the background band and the
+    # K^SQ kernel when pixels as coarse as they are round it below them
+    far = max(abs(p.background_band_mm[0]), abs(p.background_band_mm[1]), 0.5 * p.sq_width_mm)
+    half = max(_n(p.gpp_size_mm, step) // 2, int(np.ceil(far / step - 1e-9)))
     y = step * np.arange(-half, half + 1)
     strip = _strip(image, grid, axis, x, y).astype(np.float64)  # rows y, columns x
     line_rows, bg_rows = _contrast_rows(y, p)

@@ -253,6 +253,9 @@ def test_params_are_validated():
         MathiassenParams(ray_length_mm=0.0)
     with pytest.raises(ValueError, match="min_rays"):
         MathiassenParams(min_rays=13)
+    # the strip across the axis (+-gpp_size_mm / 2) must hold the background band 2-3 mm above
+    with pytest.raises(ValueError, match="gpp_size_mm must be at least 6 mm"):
+        MathiassenParams(gpp_size_mm=1e-300)
 
 
 # ----------------------------------------------------------------- the weight file

@@ -396,22 +396,36 @@ def test_a_short_mark_is_taken_for_a_needle_once_it_grows(lengths, tracked):
     """A mark shorter than ``min_length_mm`` entering through the top edge is taken for the
     needle coming in once it has grown by 1 mm where it was first seen; a still mark of the
     same length is not."""
+    est = _track_marks(lengths, 0.05, seed=11)
+    assert tuple(e.status == Status.TRACKING for e in est) == tracked, [e.reason for e in est]
+    if tracked[-1]:
+        assert np.linalg.norm(est[-1].tip_mm - _mark_tip(4.5)) < 0.6
+
+
+_MARK_ANGLE = np.deg2rad(40.0)
+
+
+def _mark_tip(length_mm):
+    """(x, z) mm of the end of a mark ``length_mm`` long from the top edge (see
+    :func:`_track_marks`)."""
+    return np.array([190 * 0.2 - length_mm * np.cos(_MARK_ANGLE),
+                     length_mm * np.sin(_MARK_ANGLE)])
+
+
+def _track_marks(lengths, dt_s, seed):
+    """The `line` tracker's estimates on a stand-in learned map, one frame every ``dt_s``, of a
+    mark entering through the top edge at 40 degrees, ``lengths`` mm long in turn."""
     h, w = 200, 200
-    image = np.random.default_rng(11).integers(40, 120, (h, w)).astype(np.uint8)
+    image = np.random.default_rng(seed).integers(40, 120, (h, w)).astype(np.uint8)
     g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
-    a = np.deg2rad(40.0)
 
     def mark(length_mm):
-        end = (length_mm / 0.2 * np.sin(a), 190 - length_mm / 0.2 * np.cos(a))
+        end = (length_mm / 0.2 * np.sin(_MARK_ANGLE), 190 - length_mm / 0.2 * np.cos(_MARK_ANGLE))
         return _line_map(h, w, (0, 190), end, width=3)
 
     tr = LineTracker(features=_MapsSource([mark(x) for x in lengths]))
-    est = [tr.update(Frame(image=image, grid=g, t=0.05 * i, index=i))
-           for i in range(len(lengths))]
-    assert tuple(e.status == Status.TRACKING for e in est) == tracked, [e.reason for e in est]
-    if tracked[-1]:
-        tip = np.array([190 * 0.2 - 4.5 * np.cos(a), 4.5 * np.sin(a)])
-        assert np.linalg.norm(est[-1].tip_mm - tip) < 0.6
+    return [tr.update(Frame(image=image, grid=g, t=dt_s * i, index=i))
+            for i in range(len(lengths))]
 
 
 @pytest.mark.parametrize("lengths, tracked", [
@@ -428,26 +442,14 @@ def test_a_short_new_line_must_grow_to_stay_a_needle(lengths, tracked):
     """At 5 frames/s: a new track on a line shorter than ``settled_length_mm`` is dropped as
     tissue when it has not grown by 1 mm within ``prove_within_s`` (0.5 s), and that line is
     taken again only once it reaches 1 mm further than it had."""
-    h, w = 200, 200
-    image = np.random.default_rng(12).integers(40, 120, (h, w)).astype(np.uint8)
-    g = synth.Grid(image.shape, (0.2, 0.2), (0.0, 0.0))
-    a = np.deg2rad(40.0)
-
-    def mark(length_mm):
-        end = (length_mm / 0.2 * np.sin(a), 190 - length_mm / 0.2 * np.cos(a))
-        return _line_map(h, w, (0, 190), end, width=3)
-
-    tr = LineTracker(features=_MapsSource([mark(x) for x in lengths]))
-    est = [tr.update(Frame(image=image, grid=g, t=0.2 * i, index=i))
-           for i in range(len(lengths))]
+    est = _track_marks(lengths, 0.2, seed=12)
     assert tuple(e.status == Status.TRACKING for e in est) == tracked, [e.reason for e in est]
     if not all(tracked):
         assert "has not grown in 0.60 s" in est[3].reason
         assert all("stood still" in e.reason for e in est[4:7])
     if len(lengths) > 8:  # the slow needle's tip, as taken again and kept
-        L = np.array(lengths)
-        tips = np.stack([190 * 0.2 - L * np.cos(a), L * np.sin(a)], axis=1)
-        err = [np.linalg.norm(e.tip_mm - t) for e, t in zip(est[7:], tips[7:], strict=True)]
+        err = [np.linalg.norm(e.tip_mm - _mark_tip(x)) for e, x in
+               zip(est[7:], lengths[7:], strict=True)]
         assert max(err) < 0.6, err
 
 
