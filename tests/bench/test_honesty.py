@@ -1,5 +1,6 @@
-"""``needlenet bench honesty`` (issue 21's needle-free protocol): the per-world figures from
-hand-made runs, the protocol's sequence, and the demo tier end to end."""
+"""``needlenet bench honesty`` (issue 21's needle-free protocol, and recordings without a
+needle from their start): the per-world figures from hand-made runs, the protocol's sequence,
+and the demo tier end to end."""
 
 import json
 from types import SimpleNamespace
@@ -81,3 +82,7 @@ def test_demo_tier(tmp_path):
     df = by[("df", "learned")]
     assert df["false_tracking"] == 0 and df["reacquire_frames"][0] <= 1
     assert "needle-free `tracking`" in res["markdown"]
+    # world 100 without a needle from its first frame: nothing `tracking` on it
+    assert line["recording_false_tracking"] == 0 and line["recording_frames"] == 30
+    assert "needle-free recordings `tracking`" in res["markdown"]
+
