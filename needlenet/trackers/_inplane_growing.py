@@ -14,8 +14,8 @@ millimetres long at the edge of a sector is a blob whose line's direction is a g
 `line` tracker takes it for a needle once it has grown by ``growth_mm``.
 
 The same holds for a new track on a line a little longer than a needle segment's least: it
-stays only if it grows within a few frames. :class:`StillMarks` keeps those that did not,
-so that the tracker takes a line there again only once it is longer than the mark was.
+stays only if it grows within ``prove_within_s``. :class:`StillMarks` keeps those that did
+not, so that the tracker takes a line there again only once it reaches further than they had.
 """
 
 from __future__ import annotations

@@ -2,7 +2,8 @@
 accepted in a row): a new line from its entry longer than the needle could have grown is the
 needle merged with a tissue line beside it, a needle seen running on out of view holds the
 track, and once a confirmed needle has vanished, a line elsewhere is taken only when it grows
-as an insertion does. A mixin of :class:`~._inplane_line.LineTracker`, whose state it reads
+as an insertion does; and before a short new track may be confirmed it must grow at all
+(``_proven``). A mixin of :class:`~._inplane_line.LineTracker`, whose state it reads
 (``params``, ``features``, the filter and the tracked line) and whose frame flags it sets."""
 
 from __future__ import annotations
