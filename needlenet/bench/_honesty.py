@@ -130,7 +130,7 @@ def free_recording(world: int):
 
 def tracking_frames(estimates: list) -> int:
     """Frames reported ``tracking``."""
-    return sum(getattr(e.status, "value", e.status) == "tracking" for e in estimates)
+    return sum(e.status == "tracking" for e in estimates)
 
 
 def _row(method: str, kind: str, per_world: list[dict], tier: str) -> dict:

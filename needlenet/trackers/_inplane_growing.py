@@ -82,14 +82,21 @@ class GrowingMark:
         """How much longer ``seg`` is than at its first sighting (0 on the first sighting,
         which it becomes when it is not the mark seen before)."""
         self._unseen = 0
-        if self._middle is not None:
-            t = np.clip((self._middle - seg.start_mm) @ seg.direction, 0.0, seg.length_mm)
-            off = float(np.linalg.norm(seg.start_mm + t * seg.direction - self._middle))
-            if off <= self.params.near_mm:
-                return float(seg.length_mm - self._length)
-        self._middle = 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
+        if self._middle is not None and _passes_near(seg, self._middle, self.params.near_mm):
+            return float(seg.length_mm - self._length)
+        self._middle = _middle(seg)
         self._length = float(seg.length_mm)
         return 0.0
+
+
+def _middle(seg: NeedleLine) -> np.ndarray:
+    return 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
+
+
+def _passes_near(seg: NeedleLine, point: np.ndarray, near_mm: float) -> bool:
+    """Whether the segment ``seg`` passes within ``near_mm`` of ``point``."""
+    t = np.clip((point - seg.start_mm) @ seg.direction, 0.0, seg.length_mm)
+    return float(np.linalg.norm(seg.start_mm + t * seg.direction - point)) <= near_mm
 
 
 _MAX_MARKS = 32  # still marks remembered: a bound on memory, not a setting
@@ -114,8 +121,7 @@ class StillMarks:
         ``far_end_mm`` and ``far_tip_mm`` at the furthest."""
         if len(self._marks) >= _MAX_MARKS:
             del self._marks[0]  # the oldest goes first
-        middle = 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
-        self._marks.append((middle, np.asarray(seg.direction, float).copy(),
+        self._marks.append((_middle(seg), np.asarray(seg.direction, float).copy(),
                             np.asarray(far_end_mm, float).copy(),
                             np.asarray(far_tip_mm, float).copy()))
 
@@ -124,11 +130,8 @@ class StillMarks:
         it, lies beyond the furthest of the still mark it runs along, along ``seg``; None when
         it runs along none."""
         for middle, direction, far_end, far_tip in self._marks:
-            if abs(float(direction @ seg.direction)) < np.cos(np.deg2rad(_SAME_LINE_DEG)):
-                continue
-            t = np.clip((middle - seg.start_mm) @ seg.direction, 0.0, seg.length_mm)
-            if float(np.linalg.norm(seg.start_mm + t * seg.direction - middle)) <= \
-                    self.params.near_mm:
+            if abs(float(direction @ seg.direction)) >= np.cos(np.deg2rad(_SAME_LINE_DEG)) and \
+                    _passes_near(seg, middle, self.params.near_mm):
                 return max(float((np.asarray(seg.end_mm, float) - far_end) @ seg.direction),
                            float((np.asarray(tip_mm, float) - far_tip) @ seg.direction))
         return None

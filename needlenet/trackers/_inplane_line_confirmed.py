@@ -118,7 +118,7 @@ class ConfirmedTrack:
                 return (f"no needle: the {seg.length_mm:.0f} mm line lies on a short line that "
                         "stood still; it is taken once it grows, as an insertion")
             if beyond is None and seg.length_mm < p.settled_length_mm:
-                self._unproven = _Unproven(seg, tip_mm, t)
+                self._unproven = _Unproven(seg.end_mm, tip_mm, t)
             return ""
         u = self._unproven
         if u is None:
@@ -126,7 +126,7 @@ class ConfirmedTrack:
         end = float((seg.end_mm - u.end0_mm) @ seg.direction)
         tip = float((tip_mm - u.tip0_mm) @ seg.direction)
         tip_grown = tip >= g and u.tip_grown
-        u.seg, u.tip_grown = seg, tip >= g
+        u.tip_grown = tip >= g
         u.far_end_mm, u.far_tip_mm = max(u.far_end_mm, end), max(u.far_tip_mm, tip)
         if end >= g or tip_grown or seg.length_mm >= p.settled_length_mm:
             self._unproven = None
@@ -145,9 +145,9 @@ class _Unproven:
     """A new track on a short segment, until it grows: its first far end and tip, and the
     furthest each has advanced since."""
 
-    def __init__(self, seg: NeedleLine, tip_mm: np.ndarray, t: float):
-        self.seg, self.t0 = seg, t
-        self.end0_mm = np.asarray(seg.end_mm, float).copy()
+    def __init__(self, end_mm: np.ndarray, tip_mm: np.ndarray, t: float):
+        self.t0 = t
+        self.end0_mm = np.asarray(end_mm, float).copy()
         self.tip0_mm = np.asarray(tip_mm, float).copy()
         self.far_end_mm = self.far_tip_mm = 0.0
         self.tip_grown = False  # the tip was growth_mm on on the frame before
