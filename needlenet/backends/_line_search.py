@@ -144,6 +144,9 @@ def working_map(values: np.ndarray, grid: Grid, step_mm: float) -> WorkingMap:
                       oz + (0.5 * sz - 0.5) * dz, step)
 
 
+_VOTE_BLOCK = 65536  # (point, direction) votes binned at once by hough_peaks
+
+
 def _normal(theta: np.ndarray) -> np.ndarray:
     """Unit normals (-sin, cos) of line directions (cos, sin), theta in radians."""
     return np.stack([-np.sin(theta), np.cos(theta)], axis=-1)
@@ -157,18 +160,30 @@ def hough_peaks(pts: np.ndarray, w: np.ndarray, thetas_rad: np.ndarray, rho_bin_
     Votes are summed over three adjacent rho bins, so a line on a bin edge is not split.
     Peaks closer than ``min_separation`` (radians, mm) to a stronger one are skipped."""
     thetas = np.asarray(thetas_rad, float)
-    rho = pts.astype(np.float32) @ _normal(thetas).T.astype(np.float32)  # (N, A)
-    lo = float(rho.min()) if rho_window is None else float(rho_window[0])
-    hi = float(rho.max()) if rho_window is None else float(rho_window[1])
+    normals = _normal(thetas).T.astype(np.float32)
+    p32, w32 = pts.astype(np.float32), np.asarray(w, np.float32)
+    # the votes are counted a block of directions at a time: temporaries of a few hundred
+    # kB instead of megabytes for all (points, directions), which cost more to allocate
+    # than to count
+    step = max(_VOTE_BLOCK // max(len(p32), 1), 1)
+    blocks = [(a0, p32 @ normals[:, a0:a0 + step]) for a0 in range(0, len(thetas), step)]
+    if rho_window is None:
+        lo = min(float(r.min()) for _, r in blocks)
+        hi = max(float(r.max()) for _, r in blocks)
+    else:
+        lo, hi = float(rho_window[0]), float(rho_window[1])
     n_bins = max(int(np.ceil((hi - lo) / rho_bin_mm)) + 1, 1)
-    b = np.floor((rho - lo) * (1.0 / rho_bin_mm)).astype(np.int32)
-    ok = (b >= 0) & (b < n_bins) if rho_window is not None else None
-    b += (np.arange(len(thetas), dtype=np.int32) * n_bins)[None, :]
-    weights = np.broadcast_to(np.asarray(w, np.float32)[:, None], b.shape)
-    if ok is not None:  # keep the votes inside the window (decided on the bin, as counted)
-        b, weights = b[ok], weights[ok]
-    acc = np.bincount(b.ravel(), weights=weights.ravel(),
-                      minlength=len(thetas) * n_bins).reshape(len(thetas), n_bins)
+    acc = np.empty((len(thetas), n_bins))
+    for a0, rho in blocks:
+        k = rho.shape[1]
+        b = np.floor((rho - lo) * (1.0 / rho_bin_mm)).astype(np.int32)
+        ok = (b >= 0) & (b < n_bins) if rho_window is not None else None
+        b += (np.arange(k, dtype=np.int32) * n_bins)[None, :]
+        weights = np.broadcast_to(w32[:, None], b.shape)
+        if ok is not None:  # the votes inside the window (decided on the bin, as counted)
+            b, weights = b[ok], weights[ok]
+        acc[a0:a0 + k] = np.bincount(b.ravel(), weights=weights.ravel(),
+                                     minlength=k * n_bins).reshape(k, n_bins)
     acc = ndimage.uniform_filter1d(acc, 3, axis=1, mode="constant") * 3.0
     flat_acc = acc.ravel()
     order = np.flatnonzero(flat_acc > 0)  # most cells are empty (and slow to partition)
@@ -236,15 +251,18 @@ def line_segment(wm: WorkingMap, c: np.ndarray, d: np.ndarray, level: float,
     if len(t) < 2:
         return NeedleLine(False, "the line crosses the image in less than two samples")
     prof = _profile(wm, c, d, t, params)
-    on = prof >= level
-    if not on.any():
+    on = np.flatnonzero(prof >= level)
+    if on.size == 0:
         return NeedleLine(False, f"no evidence above {level:g} along the line", profile=prof)
-    closed = _bridged(on, params, step)
-    labels, n_runs = ndimage.label(closed)
-    sums = ndimage.sum_labels(prof, labels, np.arange(1, n_runs + 1))
+    first, last = bridged_runs(on, max(int(round(params.gap_mm / step)), 1))
+    # label the samples of each run (its bridged gaps included) 1, 2, ...; 0 between runs
+    mark = np.zeros(prof.size + 1, np.int64)
+    mark[first] = 1
+    mark[last + 1] -= 1
+    labels = np.cumsum(np.bincount(first, minlength=prof.size)) * np.cumsum(mark[:-1])
+    sums = np.bincount(labels, weights=prof, minlength=first.size + 1)[1:]
     best = int(np.argmax(sums)) + 1
-    idx = np.flatnonzero(labels == best)
-    i0, i1 = int(idx[0]), int(idx[-1])
+    i0, i1 = int(first[best - 1]), int(last[best - 1])
     t0, t1 = _crossing(t, prof, i0, -1, level), _crossing(t, prof, i1, +1, level)
     support = float(prof[i0:i1 + 1].mean())
     return NeedleLine(True, "", c + t0 * d, c + t1 * d, d.copy(), support,
@@ -297,10 +315,13 @@ def _profile(wm: WorkingMap, c: np.ndarray, d: np.ndarray, t: np.ndarray,
     return wm.sample(pts).max(axis=0)
 
 
-def _bridged(on: np.ndarray, params: LineSearchParams, step: float) -> np.ndarray:
-    """``on`` (samples ``step`` mm apart) with gaps up to ``gap_mm`` closed."""
-    g = max(int(round(params.gap_mm / step)), 1)
-    return ndimage.binary_closing(np.pad(on, g), structure=np.ones(g + 1, bool))[g:-g]
+def bridged_runs(on: np.ndarray, gap: int) -> tuple[np.ndarray, np.ndarray]:
+    """The runs of the increasing sample indices ``on`` once gaps of up to ``gap`` samples
+    are bridged (a binary closing with a ``gap + 1``-sample element): the first and the last
+    index of each run, in order."""
+    split = np.flatnonzero(np.diff(on) > gap + 1)
+    return (on[np.concatenate([[0], split + 1])],
+            on[np.concatenate([split, [on.size - 1]])])
 
 
 def _crossing(t: np.ndarray, prof: np.ndarray, i: int, side: int, level: float) -> float:

@@ -3,11 +3,14 @@ against scikit-image's, the total-least-squares refinement, and the supported se
 
 import numpy as np
 import pytest
+from scipy import ndimage
 from skimage.transform import hough_line, hough_line_peaks
 
 from needlenet.backends._line_search import (
+    _VOTE_BLOCK,
     LineSearchParams,
     WorkingMap,
+    bridged_runs,
     extend_end,
     find_needle_line,
     hough_peaks,
@@ -167,3 +170,43 @@ def test_votes_on_the_edge_of_a_rho_window_stay_in_the_accumulator():
         pts = np.stack([np.zeros_like(rho), rho], -1).astype(float)  # theta 0: rho = z
         out = hough_peaks(pts, np.ones(len(pts)), thetas, bin_mm, 1, (lo, hi))
         assert np.all((out[:, 1] >= lo) & (out[:, 1] <= lo + n_bins * bin_mm))
+
+
+def test_bridged_runs_agree_with_scipys_binary_closing():
+    """The runs of a thresholded profile with gaps of up to ``gap`` samples bridged: the
+    labelled runs of scipy's binary closing with a (gap + 1)-sample element."""
+    rng = np.random.default_rng(3)
+    for _ in range(500):
+        n, gap = int(rng.integers(1, 120)), int(rng.integers(1, 12))
+        on = rng.random(n) < rng.random()
+        if not on.any():
+            continue
+        closed = ndimage.binary_closing(np.pad(on, gap), np.ones(gap + 1, bool))[gap:-gap]
+        labels, k = ndimage.label(closed)
+        first, last = bridged_runs(np.flatnonzero(on), gap)
+        assert first.tolist() == [int(np.flatnonzero(labels == i)[0]) for i in range(1, k + 1)]
+        assert last.tolist() == [int(np.flatnonzero(labels == i)[-1]) for i in range(1, k + 1)]
+
+
+def test_votes_counted_in_blocks_of_directions_equal_one_accumulator():
+    """More (point, direction) votes than one block holds: the peaks of the blocked count
+    equal those of one bincount over every vote, and a line's votes are its points' weights."""
+    rng = np.random.default_rng(4)
+    n = 2 * _VOTE_BLOCK // 90 + 7  # three blocks of the 90 directions
+    pts = rng.uniform(0, 40, (n, 2))
+    pts[:200] = np.linspace([5.0, 5.0], [35.0, 25.0], 200)  # a line among the clutter
+    w = rng.uniform(0.5, 1.0, n)
+    thetas = np.deg2rad(np.arange(0.0, 180.0, 2.0))
+    out = hough_peaks(pts, w, thetas, 0.4, 3)
+    normals = np.stack([-np.sin(thetas), np.cos(thetas)], -1).astype(np.float32)
+    rho = pts.astype(np.float32) @ normals.T
+    lo, hi = float(rho.min()), float(rho.max())
+    n_bins = int(np.ceil((hi - lo) / 0.4)) + 1
+    b = np.floor((rho - lo) * (1.0 / 0.4)).astype(int) + np.arange(90) * n_bins
+    acc = np.bincount(b.ravel(), np.repeat(w.astype(np.float32), 90), 90 * n_bins)
+    acc = ndimage.uniform_filter1d(acc.reshape(90, n_bins), 3, axis=1, mode="constant") * 3
+    ia, ib = np.unravel_index(np.argmax(acc), acc.shape)
+    assert out[0, 0] == pytest.approx(thetas[ia])
+    assert out[0, 1] == pytest.approx(lo + (ib + 0.5) * 0.4)
+    assert out[0, 2] == pytest.approx(acc.max(), rel=1e-6)
+    assert out[0, 2] >= w[:200].sum() * 0.9
