@@ -131,6 +131,7 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         super().reset()
         self._axis: tuple[np.ndarray, np.ndarray] | None = None  # (point, unit direction)
         self._still = StillLines(self.params.still)
+        self._still_search: tuple | None = None  # the last whole-frame frame's, not yet run
         self._growing = GrowingMark(self.params.growing)
         self._reappearing = GrowingMark(self.params.growing)  # a line after a needle left
         self._still_marks = StillMarks(self.params.growing)  # short new lines that never grew
@@ -369,6 +370,12 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         if frame.grid.ndim != 2:
             raise ValueError(f"LineTracker needs 2-D images, got a {frame.grid.ndim}-D grid")
         dt = self._update_dt(frame.t)
+        if self._still_search is not None:
+            # the search for still lines beside the needle of the frame before, run before
+            # this frame's lines are judged: a frame of the whole-frame search does not
+            # carry it too
+            args, self._still_search = self._still_search, None
+            self._still.observe(*args)
         lik, map_grid = self.features.native_likelihood(frame)
         self._beyond: dict = {}  # _echo_beyond's memo for this frame
         self._out_of_view = False  # set by _search: the tracked needle's tip is out of view
@@ -417,8 +424,10 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
                              at_echo_end)
         if self._since_full == 0:
             # the whole frame was searched: look beside the needle for still tissue lines
-            self._still.observe(wm, self._level(), self.params.search, self._line_point,
-                                self._dir, self._x[:2], looks)
+            # (at the start of the next frame)
+            self._still_search = (wm, self._level(), self.params.search,
+                                  self._line_point.copy(), self._dir.copy(),
+                                  self._x[:2].copy(), looks)
         return est
 
     def _search(self, wm: WorkingMap, is_valid, priority, runs_out,
