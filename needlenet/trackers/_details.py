@@ -118,6 +118,8 @@ class LineDetails(EstimateDetails):
     # the filter restarted at the measurement after reinit_after_rejects rejections in a row
     tip_at_echo_end: bool = False
     # the learned measurement was moved back to where the needle's echo ends in the image
+    tip_spread_mm: float = 0.0
+    # how far apart along the line the places the frame offered for the tip lie (mm)
 
 
 @dataclass(frozen=True)

@@ -50,9 +50,11 @@ Status. ``tracking`` only on a frame that shows the needle: a frame whose search
 needle segment reports ``lost`` (or ``searching`` before any detection) with no tip. The
 filter is kept for ``forget_after_frames`` such frames, so the tip is picked up again at the
 prediction when the needle reappears; after that the tracker searches the whole frame anew.
-The covariance is the filter's actual error covariance (:mod:`._inplane_line_filter`) and
+The covariance is the filter's actual error covariance (:mod:`._inplane_line_filter`),
 where the centre line lies across the echo or map of a needle of unknown gauge
-(``gauge_radii_mm``).
+(``gauge_radii_mm``), and what the frame leaves unknown (:mod:`._inplane_line_tip`): along the
+line, the spread of the places it offered for the tip; across it, a map band wider than a
+needle's.
 
 Mathiassen 2017's methods (``om``, ``kf+f``, ...) stay in :mod:`._inplane`, with the paper's
 entry corner and 20-70 degree search; this tracker makes none of those assumptions.
@@ -87,7 +89,7 @@ from ._inplane_line_confirmed import ConfirmedTrack
 from ._inplane_line_echo import echo_along
 from ._inplane_line_filter import TipKalman
 from ._inplane_line_params import LineTrackerParams
-from ._inplane_line_tip import LineTip
+from ._inplane_line_tip import LineTip, tip_spread_covariance
 from ._inplane_still import StillLines
 from ._margins import inner_region
 
@@ -411,7 +413,8 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
             return self._missed(frame, seg, (
                 f"no needle tip in view: the {seg.length_mm:.0f} mm needle's weaker "
                 "continuation on the map runs on to the edge of the view"), keep=True)
-        tip_mm, used_tip_map, at_echo_end = self._tip(frame, seg, lik.tip, map_grid, reach)
+        tip_mm, used_tip_map, at_echo_end, spread = self._tip(frame, seg, lik.tip, map_grid,
+                                                              reach)
         reason = self._proven(seg, tip_mm, new_line, frame.t)
         if reason:
             return self._missed(frame, seg, reason)
@@ -420,8 +423,10 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         self._misses = 0
         measured = tip_mm.copy()
         accepted, restarted = self._filter(tip_mm)
+        ambiguity = tip_spread_covariance(seg.direction, spread) + \
+            self._band_covariance(wm, seg, self._level())
         est = self._estimate(frame, seg, measured, used_tip_map, accepted, restarted,
-                             at_echo_end)
+                             at_echo_end, spread, ambiguity)
         if self._since_full == 0:
             # the whole frame was searched: look beside the needle for still tissue lines
             # (at the start of the next frame)
@@ -548,7 +553,8 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
 
     def _estimate(self, frame: Frame, seg: NeedleLine, measured_mm: np.ndarray,
                   used_tip_map: bool, accepted: bool | None, restarted: bool,
-                  at_echo_end: bool) -> NeedleEstimate:
+                  at_echo_end: bool, spread_mm: float, ambiguity: np.ndarray
+                  ) -> NeedleEstimate:
         self._dir = seg.direction.copy()
         self._out_of_sight = False
         self._entry_mm = seg.start_mm.copy()
@@ -563,7 +569,7 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         return NeedleEstimate(
             t=frame.t, status=Status.TRACKING, tip_mm=tip, direction=seg.direction.copy(),
             covariance=self._reported_covariance(measured_mm, accepted, restarted)
-            + self._centre_line_covariance(seg.direction),
+            + self._centre_line_covariance(seg.direction) + ambiguity,
             axis_point_mm=entry,
             details=LineDetails(
                 entry_mm=entry,
@@ -571,4 +577,4 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
                 tip_velocity_mm_s=self._x[2:].copy(), shaft_support=seg.support,
                 segment_length_mm=seg.length_mm, tip_measurement_mm=measured_mm,
                 tip_from_tip_map=used_tip_map, measurement_accepted=accepted,
-                restarted=restarted, tip_at_echo_end=at_echo_end))
+                restarted=restarted, tip_at_echo_end=at_echo_end, tip_spread_mm=spread_mm))

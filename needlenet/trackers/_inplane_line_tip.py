@@ -16,7 +16,33 @@ from ._inplane_geometry import distance_to_edge, sample_grid
 from ._inplane_line_echo import echo_beyond
 from ._inplane_line_params import MAX_DISTANCE_MM
 
-__all__ = ["LineTip"]
+__all__ = ["LineTip", "band_variance", "tip_spread_covariance"]
+
+
+def tip_spread_covariance(direction: np.ndarray, spread_mm: float) -> np.ndarray:
+    """Where the tip lies along the line when the frame offered places for it ``spread_mm``
+    apart (:meth:`LineTip._tip`): one of them is right and the frame does not say which, so
+    the tip is taken as anywhere between them, evenly: variance spread^2 / 12 along
+    ``direction``. A frame whose map, tip map and echo end agree adds nothing; one whose
+    map runs on past the echo's end (the streak of unfocused imaging past a tip, a tissue
+    line continuing the needle) adds what that disagreement leaves unknown."""
+    d = np.asarray(direction, float)
+    return np.outer(d, d) * (float(spread_mm) ** 2 / 12.0)
+
+
+def band_variance(wm: WorkingMap, seg: NeedleLine, level: float, half_mm: float) -> float:
+    """The second moment (mm^2) of the offsets across ``seg``'s line of the map's samples at
+    or above ``level`` within ``half_mm`` of it, between its ends: for a band of width w
+    centred on the line, w^2 / 12, the variance of a point anywhere across it; 0 where no
+    sample reaches the level."""
+    d = seg.direction
+    n = np.array([-d[1], d[0]])
+    t = np.arange(0.0, seg.length_mm + 1e-9, wm.step)
+    s = np.arange(-half_mm, half_mm + 1e-9, wm.step)
+    on = wm.sample(seg.start_mm[None, None] + t[None, :, None] * d
+                   + s[:, None, None] * n) >= level
+    counts = on.sum(axis=1)  # samples at the level at each offset
+    return float(counts @ s ** 2 / counts.sum()) if counts.any() else 0.0
 
 
 class LineTip:
@@ -41,6 +67,20 @@ class LineTip:
         normal = np.array([-direction[1], direction[0]])
         return radius_variance(self.params.gauge_radii_mm, "gauge_radii_mm") * \
             np.outer(normal, normal)
+
+    def _band_covariance(self, wm: WorkingMap, seg: NeedleLine, level: float) -> np.ndarray:
+        """Where the centre line lies across a map band wider than a needle's: the band's
+        variance across the line (:func:`band_variance`, within the search's
+        ``explained_mm``) beyond that of the band a needle of ``needle_radius_mm`` leaves at
+        the level (the learned map's training target, a Gaussian of the distance to the wall
+        with sigma the radius, is at half its height 2 sqrt(2 ln 2) radius wide), across
+        ``seg``'s direction. A band as wide as a needle's adds nothing; one that takes in the
+        blur of a deep phased-array echo or an interface beside the needle adds its width."""
+        p = self.params
+        width = 2.0 * np.sqrt(2.0 * np.log(2.0)) * max(p.needle_radius_mm, 0.3)
+        extra = band_variance(wm, seg, level, p.search.explained_mm) - width ** 2 / 12.0
+        n = np.array([-seg.direction[1], seg.direction[0]])
+        return np.outer(n, n) * max(extra, 0.0)
 
     def _echo_beyond(self, frame: Frame, inner: np.ndarray, seg: NeedleLine
                      ) -> tuple[float, float]:
@@ -75,16 +115,18 @@ class LineTip:
         return float(np.linalg.norm(longer.end_mm - seg.end_mm)), False
 
     def _tip(self, frame: Frame, seg: NeedleLine, tip_map, grid, reach_mm: float = 0.0
-             ) -> tuple[np.ndarray, bool, bool]:
-        """The tip (x, z) on the centre line, whether the tip map placed it and whether it was
-        moved back to the end of the echo: the segment's far end, moved to the tip map's
+             ) -> tuple[np.ndarray, bool, bool, float]:
+        """The tip (x, z) on the centre line, whether the tip map placed it, whether it was
+        moved back to the end of the echo, and how far apart (mm, along the line) the places
+        the frame offered for the tip lie: the segment's far end, moved to the tip map's
         maximum when the map is confident there, searched from ``tip_window_mm`` behind the
         end to its window ahead of the end's weaker continuation (``reach_mm`` long): weaker
         shaft evidence moves the tip only where the tip map confirms it; with classical
         features, to where the echo's run ends. A tip that lies past where the needle's echo
         ends in the image (:func:`echo_end`: a map, or the run of echo, follows the streak of
         unfocused imaging) is moved back there, and to the tip map's maximum within
-        ``tip_window_mm`` of it."""
+        ``tip_window_mm`` of it. The places: the segment's end, its continuation's end, the
+        tip map's choice, the echo's end and the tip."""
         p = self.params
         normal = np.array([-seg.direction[1], seg.direction[0]])
         if normal[1] < 0:
@@ -95,13 +137,16 @@ class LineTip:
             end, used = self._tip_map_max(tip_map, grid, end, seg.direction, reach_mm)
         else:  # the classical echo itself goes on this far (see _reach_mm)
             end = end + reach_mm * seg.direction
-        along = echo_end(frame, seg.start_mm, seg.direction,
-                         float((end - seg.start_mm) @ seg.direction), p.echo_end)
+        places = [seg.length_mm, seg.length_mm + reach_mm,
+                  float((end - seg.start_mm) @ seg.direction)]
+        along = echo_end(frame, seg.start_mm, seg.direction, places[-1], p.echo_end)
         if along is not None:
             end, used = seg.start_mm + along * seg.direction, False
             if tip_map is not None:
                 end, used = self._tip_map_max(tip_map, grid, end, seg.direction, 0.0, end)
-        return end + self._offset_mm() * normal, used, along is not None
+            places += [along, float((end - seg.start_mm) @ seg.direction)]
+        return (end + self._offset_mm() * normal, used, along is not None,
+                max(places) - min(places))
 
     def _tip_map_max(self, tip_map, grid, end: np.ndarray, d: np.ndarray, reach_mm: float,
                      default: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
