@@ -144,7 +144,7 @@ def working_map(values: np.ndarray, grid: Grid, step_mm: float) -> WorkingMap:
                       oz + (0.5 * sz - 0.5) * dz, step)
 
 
-_VOTE_BLOCK = 65536  # (point, direction) votes binned at once by hough_peaks
+_VOTE_BLOCK = 32768  # (point, direction) votes binned at once by hough_peaks
 
 
 def _normal(theta: np.ndarray) -> np.ndarray:
