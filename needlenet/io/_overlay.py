@@ -1,4 +1,5 @@
-"""Overlay animations of tracking results: estimate in red, ground truth in green."""
+"""Overlay animations of tracking results: estimate in red (in 2D with the region its
+covariance gives the tip at 95%), ground truth in green."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-__all__ = ["overlay_frames", "write_overlay"]
+from ..backends import chi2_gate
+
+__all__ = ["overlay_frames", "tip_region_mm", "write_overlay"]
 
 _RED, _GREEN, _YELLOW, _WHITE = (40, 40, 255), (60, 220, 60), (0, 220, 255), (255, 255, 255)
 
@@ -17,6 +20,23 @@ _RED, _GREEN, _YELLOW, _WHITE = (40, 40, 255), (60, 220, 60), (0, 220, 255), (25
 def _px(grid, pts_xz, scale):
     idx = grid.points_to_index(np.asarray(pts_xz, float))
     return tuple(int(round(v * scale + scale / 2)) for v in idx[::-1])
+
+
+def tip_region_mm(tip_mm, covariance, n: int = 64) -> np.ndarray | None:
+    """``n`` points (x, z) mm on the boundary of the 2D region that holds the tip with 95%
+    probability under a Gaussian with ``covariance`` (mm^2) about ``tip_mm``: the ellipse
+    of Mahalanobis distance sqrt(chi2_2(0.95)); None for a covariance that is not one (not
+    2 x 2, not finite, or with a negative variance)."""
+    C = None if covariance is None else np.asarray(covariance, float)
+    if C is None or C.shape != (2, 2) or not np.all(np.isfinite(C)):
+        return None
+    var, axes = np.linalg.eigh(0.5 * (C + C.T))
+    if var.min() < -1e-12 * max(var.max(), 1e-300):
+        return None
+    phi = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    unit = np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    radii = chi2_gate(2, 0.95) * np.sqrt(np.maximum(var, 0.0))
+    return np.asarray(tip_mm, float) + (unit * radii) @ axes.T
 
 
 def _frame_2d(seq, i, est, scale):
@@ -30,6 +50,11 @@ def _frame_2d(seq, i, est, scale):
         tip = np.asarray(est.tip_mm, float)
         c = _px(g, tip, scale)
         cv2.drawMarker(img, c, _RED, cv2.MARKER_CROSS, max(8, 4 * scale), 1, cv2.LINE_AA)
+        region = tip_region_mm(tip, est.covariance)
+        if region is not None:
+            idx = np.clip(g.points_to_index(region) * scale + scale / 2, -2**20, 2**20)
+            cv2.polylines(img, [np.round(idx[:, ::-1]).astype(np.int32)], True, _RED, 1,
+                          cv2.LINE_AA)  # (row, col) -> OpenCV's (x, y)
         if est.direction is not None and seq.modality == "inplane":
             back = tip - 15.0 * np.asarray(est.direction, float)
             cv2.line(img, _px(g, back, scale), c, _RED, 1, cv2.LINE_AA)
