@@ -81,7 +81,8 @@ class VolumeTracker(Tracker):
 
     Each :meth:`update` returns a :class:`NeedleEstimate` with the tip (mm, x, y, z), the unit
     direction from the entry to the tip, the tip covariance (mm^2; the Kalman filter's for
-    roi-rk and chatelain, ``r_position * I`` for ransac), ``axis_point_mm`` (where the
+    roi-rk and chatelain, ``r_position * I`` for ransac, plus what the volume leaves unknown,
+    :mod:`._ambiguity`), ``axis_point_mm`` (where the
     visible needle starts on the axis), ``reason`` when nothing was measured, and
     :class:`VolumeDetails` (angles of eq. (4), RANSAC's inliers and trials, the ROI's size,
     the tip before the Kalman filter).
@@ -174,9 +175,12 @@ class VolumeTracker(Tracker):
             length = float(m.a_tip - m.a_entry) if (m is not None and m.ok) else 0.0
             axis_point = np.asarray(tip, float) - length * np.asarray(direction, float)
         measured = np.asarray(m.tip, float) if m is not None and m.ok else None
+        covariance = np.asarray(covariance, float)
+        if measured is not None and m.ambiguity is not None:
+            covariance = covariance + m.ambiguity  # what this volume leaves unknown
         return NeedleEstimate(t=frame.t, status=status, tip_mm=np.asarray(tip, float),
                               direction=np.asarray(direction, float),
-                              covariance=np.asarray(covariance, float), reason=reason,
+                              covariance=covariance, reason=reason,
                               axis_point_mm=np.asarray(axis_point, float),
                               details=VolumeDetails(*counts, alpha_deg=math.degrees(alpha),
                                                     beta_deg=math.degrees(beta),

@@ -26,6 +26,7 @@ from ...backends import (
     tip_along_axis,
     within_angle,
 )
+from ._ambiguity import measurement_ambiguity
 from ._geometry import RING_ANGLES, Volume, profile, ring_section, run_out_distance
 from ._placement import image_tip, needle_contrast, refine_on_image, tip_on_map
 from .params import MeasurementParams, VolumeTrackerParams
@@ -59,6 +60,8 @@ class Measurement:
     a_entry: float = math.nan
     a_tip: float = math.nan
     entry_gap_mm: float = math.nan  # from the visible entry back to the sector's boundary
+    # what the volume leaves unknown about the tip (mm^2, :mod:`._ambiguity`)
+    ambiguity: np.ndarray | None = None
 
 
 def fail(reason: str, trials: int = 0, roi_voxels: int = 0, inliers: int = 0) -> Measurement:
@@ -355,10 +358,13 @@ def measure(vol: Volume, region: np.ndarray | None, level: float, p: VolumeTrack
         if predicted_tip is not None:
             predicted = float(fitted.parameter(np.asarray(predicted_tip, float)[None])[0])
         a_tip = image_tip(vol, fitted, a_entry, a_drop, p, predicted)
+        places = [a_drop, a_tip]  # where the map and the image put the tip
     else:
         a_tip = a_drop - mp.tip_cap_mm  # the image of the needle ends one cap beyond its tip
+        places = [a_tip]
     if vol.tip is not None and lp.tip_window_mm > 0:
         a_tip = tip_on_map(vol, fitted, a_entry, a_tip, p)
+        places.append(a_tip)
     length = a_tip - a_entry
     if length < mp.min_length_mm:
         return fail(f"needle too short: {length:.2f} mm < {mp.min_length_mm} mm", res.n_trials,
@@ -369,4 +375,5 @@ def measure(vol: Volume, region: np.ndarray | None, level: float, p: VolumeTrack
     far = float(np.linalg.norm(vol.spacing * vol.shape))
     gap = run_out_distance(vol, entry, -direction, far)
     return Measurement(True, None, fitted, entry, tip, direction, n_inliers, res.n_trials,
-                       roi_voxels, a_entry, a_tip, gap)
+                       roi_voxels, a_entry, a_tip, gap, measurement_ambiguity(
+                           vol, fitted, a_entry, a_tip, level, places, mp.inlier_radius_mm))
