@@ -19,6 +19,7 @@ from ._geometry import Volume, perpendiculars
 __all__ = ["BAND_READ_MM", "measurement_ambiguity"]
 
 BAND_READ_MM = 2.0  # the band read around the axis: the in-plane search's explained_mm
+_SAMPLES = 256  # the most samples along the axis (and a quarter of it across each way)
 
 
 def measurement_ambiguity(vol: Volume, model, a_entry: float, a_tip: float, level: float,
@@ -30,11 +31,14 @@ def measurement_ambiguity(vol: Volume, model, a_entry: float, a_tip: float, leve
     u = u / np.linalg.norm(u)
     spread = max(places) - min(places) if places else 0.0
     along = np.outer(u, u) * spread ** 2 / 12.0
+    # read at the voxel size, at most _SAMPLES along the axis and across it (fine voxels)
     step = float(np.min(vol.spacing))
-    a = np.arange(a_entry, a_tip + 1e-9, step)
-    if a.size == 0:
+    length = a_tip - a_entry
+    if not length >= 0.0:
         return along
-    off = np.arange(-BAND_READ_MM, BAND_READ_MM + 1e-9, step)
+    a = a_entry + np.linspace(0.0, length, min(int(length / step) + 1, _SAMPLES))
+    off = np.linspace(-BAND_READ_MM, BAND_READ_MM,
+                      min(2 * int(BAND_READ_MM / step) + 1, _SAMPLES // 4 + 1))
     s1, s2 = (g.ravel() for g in np.meshgrid(off, off, indexing="ij"))
     disc = s1 ** 2 + s2 ** 2 <= BAND_READ_MM ** 2
     s1, s2 = s1[disc], s2[disc]
