@@ -40,6 +40,7 @@ FLAT_NAMES = (
     "image_tip_min_effect image_tip_background_mm roi_radius_mm max_axis_jump_deg "
     "max_axis_shift_mm frangi speckle_kernel_mm speckle_search_mm q_angle q_tip r_angle "
     "r_position r_velocity p0_angle_rate p0_velocity rival_check_volumes rival_advance_mm "
+    "prove_within_s "
     "insertion insertion_candidates_mm3 "
     "n_control_points voi_radius_mm voi_margin_mm voi_candidates_mm3 init_voi_radius_mm "
     "max_angle_deg detection_window start_length_mm start_min_likelihood start_tip_margin_mm "
@@ -60,7 +61,7 @@ def _text(value) -> str:
 
 
 def test_every_old_name_belongs_to_one_group_and_still_sets_and_reads_its_field():
-    assert len(FLAT_NAMES) == 74
+    assert len(FLAT_NAMES) == 75
     owners = {f.name: g for g, cls in GROUPS.items() for f in fields(cls)}
     assert sorted([*owners, "default_dt_s"]) == sorted(FLAT_NAMES)
     assert [f.name for f in fields(VolumeTrackerParams)] == [*GROUPS, "default_dt_s"]

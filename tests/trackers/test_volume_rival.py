@@ -1,5 +1,6 @@
-"""ROI-RK started on a bright needle-like tissue line lets go of it when the needle advances
-elsewhere (``rival_check_volumes``, ``rival_advance_mm``).
+"""ROI-RK started on a bright needle-like tissue line lets go of it: when the line has not
+advanced within ``prove_within_s`` of the start (the line is remembered), and, for a track held
+longer, when the needle advances elsewhere (``rival_check_volumes``, ``rival_advance_mm``).
 
 synth volume world 900 (CR 2.5, 96^3, distractors on): the learned initialisation takes a
 26 mm tissue line for the needle on the first volume; the needle, inserted from the other
@@ -28,9 +29,31 @@ def _errors(seq, params=None):
                      for k, e in enumerate(est)])
 
 
+# the rival search alone: no probation for the first track
+RIVALS_ONLY = VolumeTrackerParams(prove_within_s=0)
+
+
+def test_a_new_track_that_does_not_advance_is_dropped_and_its_line_refused():
+    pytest.importorskip("onnxruntime")
+    seq = synth.generate("volume", seed=900, frames=8, cr=2.5, output_size=96)
+    tracker = make_tracker("volume", "roi-rk", "learned", seed=0)
+    est = tracker.run(seq)
+    err = np.array([np.inf if e.tip_mm is None else np.linalg.norm(e.tip_mm - seq.tip_mm[k])
+                    for k, e in enumerate(est)])
+    # the tissue line tracked on volumes 0-1 stood still: dropped 2 s (two volumes) in,
+    # remembered, and the needle, advancing 0.9 mm a volume, taken on the next volume
+    assert np.all(err[:2] > 10.0)
+    assert est[2].status.value == "lost" and "has not advanced" in est[2].reason
+    assert len(tracker._still) == 1
+    assert np.all(err[3:] <= 3.0) and np.median(err[3:]) <= 1.0
+    # without the probation the line is held until the rival search lets it go
+    held = _errors(seq, RIVALS_ONLY)
+    assert np.all(held[:7] > 10.0)
+
+
 def test_a_track_on_a_still_tissue_line_gives_way_to_the_advancing_needle(world):
     pytest.importorskip("onnxruntime")
-    err = _errors(world)
+    err = _errors(world, RIVALS_ONLY)
     # the first volumes track the tissue line; two searches 4 volumes apart see the needle
     # advance while the tracked tip stands still, and the track moves to it
     assert np.all(err[:4] > 3.0)
@@ -38,7 +61,7 @@ def test_a_track_on_a_still_tissue_line_gives_way_to_the_advancing_needle(world)
     assert 4 <= switched <= 8
     assert np.all(err[switched:] <= 2.0) and np.median(err[switched:]) <= 0.5
     # without the search the tissue line is held to the end
-    never = _errors(world, VolumeTrackerParams(rival_check_volumes=0))
+    never = _errors(world, VolumeTrackerParams(rival_check_volumes=0, prove_within_s=0))
     assert np.all(never > 3.0)
 
 
@@ -56,6 +79,7 @@ def test_a_probe_motion_drops_the_needles_noted_beside_the_track(world):
     from needlenet.trackers._base import frames_from_sequence
 
     tracker = make_tracker("volume", "roi-rk", "learned", seed=0)
+    tracker.params = RIVALS_ONLY
     for k, frame in enumerate(frames_from_sequence(world)):
         if k == 5:
             break

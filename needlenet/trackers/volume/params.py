@@ -297,6 +297,11 @@ class RoiRkParams:
         How far that needle must have advanced along its axis since it was first seen, while
         the tracked tip moved less than half as far, to take the track over (ten times the tip
         measurement's 0.2 mm noise).
+    prove_within_s : float
+        A new track whose measured tip has not advanced half ``rival_advance_mm`` along its
+        axis within this time is dropped as a still tissue line and its line remembered (0:
+        no test): 2 s, two volumes at Zhao's 1 volume/s in which his 1 mm/s needle advances
+        2 mm; a needle held still when it is first seen is taken once it moves.
     """
 
     init_attempts: int = 5
@@ -321,6 +326,7 @@ class RoiRkParams:
     p0_velocity: float = 25.0
     rival_check_volumes: int = 4
     rival_advance_mm: float = 2.0
+    prove_within_s: float = 2.0
 
     def __post_init__(self):
         _check_positive(self, ("roi_radius_mm", "max_axis_jump_deg", "max_axis_shift_mm",
@@ -328,7 +334,8 @@ class RoiRkParams:
                                "r_position", "r_velocity", "p0_angle_rate", "p0_velocity",
                                "init_select_ratio", "rival_advance_mm"))
         _check_non_negative(self, ("speckle_search_mm", "init_min_likelihood",
-                                   "init_min_contrast", "init_max_sheet", "init_tip_margin_mm"))
+                                   "init_min_contrast", "init_max_sheet", "init_tip_margin_mm",
+                                   "prove_within_s"))
         _check_integers(self, (("init_attempts", 1), ("rival_check_volumes", 0)))
         if self.init_select not in ("support", "likelihood"):
             raise ValueError(f"init_select must be 'support' or 'likelihood', "

@@ -80,6 +80,10 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         self._rivals: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._since_check = 0
         self._check_tip: np.ndarray | None = None  # the tracked tip at the last check
+        # a new track on probation: (when it started, its first measured tip)
+        self._probation: tuple[float, np.ndarray] | None = None
+        # lines dropped for standing still: (direction, tip then)
+        self._still: list[tuple[np.ndarray, np.ndarray]] = []
 
     def _zhao_model(self, dt: float):
         r = self.params.roi_rk
@@ -105,7 +109,7 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         tip_pred = kf.x[TIP]
         rival = self._advancing_rival(frame, vol, level, tip_pred, u_pred)
         if rival is not None:  # the tracked line stood still while a needle advanced
-            return self._start(frame, vol, rival, dt)
+            return self._start(frame, vol, rival, dt, proven=True)
         region = cylinder(vol, tip_pred, u_pred, r.roi_radius_mm)  # eq. (1)
         self._region_maps(vol, tip_pred, u_pred, r.roi_radius_mm)  # learned: the ROI's maps
         m = measure(vol, region, level, p, self.rng, max_trials=p.measurement.max_trials,
@@ -119,6 +123,8 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
                 reason = f"axis shift: {shift:.2f} mm > {r.max_axis_shift_mm} mm"
         else:
             reason = m.reason
+        if reason is None:
+            reason = self._stood_still(frame, m)
         if reason is not None:  # the ROI has lost the needle: initialise again next volume
             self._kf = None
             self._prev_image = None
@@ -136,9 +142,12 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         return self._report(frame, Status.TRACKING, m, kf.x[TIP],
                             angles_to_direction(*kf.x[ANGLES]), kf.P[TIP, TIP])
 
-    def _start(self, frame: Frame, vol: Volume, m: Measurement, dt: float) -> NeedleEstimate:
-        """Start the Kalman filter on needle ``m`` (the rates and the velocity at zero)."""
+    def _start(self, frame: Frame, vol: Volume, m: Measurement, dt: float,
+               proven: bool = False) -> NeedleEstimate:
+        """Start the Kalman filter on needle ``m`` (the rates and the velocity at zero), on
+        probation (:meth:`_stood_still`) unless ``proven`` (seen advancing already)."""
         r = self.params.roi_rk
+        self._probation = None if proven else (frame.t, m.tip.copy())
         x = np.zeros(STATE_SIZE)
         x[ANGLES] = angles(m.direction)
         x[TIP] = m.tip
@@ -151,6 +160,42 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
         self._rivals, self._since_check, self._check_tip = [], 0, m.tip.copy()
         return self._report(frame, Status.TRACKING, m, m.tip, m.direction,
                             self._kf.P[TIP, TIP])
+
+    def _stood_still(self, frame: Frame, m: Measurement) -> str | None:
+        """Why a new track is dropped, or None: within ``prove_within_s`` of its start its
+        measured tip must advance along its axis by half ``rival_advance_mm`` (the advance by
+        which the rival search takes a tracked needle for the one inserted); a bright line of
+        the tissue crossing the volume's face looks like a needle inserted from outside in one
+        volume, but stands still. The line is remembered, and a start on it is refused until
+        its tip lies that far beyond where it stood (:meth:`_on_still_line`)."""
+        r = self.params.roi_rk
+        if self._probation is None or r.prove_within_s == 0:
+            return None
+        t0, tip0 = self._probation
+        step = 0.5 * r.rival_advance_mm
+        if float((m.tip - tip0) @ m.direction) >= step:
+            self._probation = None  # proven: a needle being inserted
+            return None
+        if frame.t - t0 < r.prove_within_s:
+            return None
+        self._probation = None
+        if len(self._still) >= _MAX_RIVALS:
+            del self._still[0]
+        self._still.append((m.direction.copy(), m.tip.copy()))
+        return (f"no needle: the line has not advanced {step:g} mm in {frame.t - t0:.1f} s "
+                "since it was taken: a still structure of the tissue, not a needle inserted")
+
+    def _on_still_line(self, m: Measurement) -> str | None:
+        """Why a start on ``m`` is refused, or None: it lies on a line dropped for standing
+        still (within ``max_axis_jump_deg`` and ``max_axis_shift_mm``) and its tip is not half
+        ``rival_advance_mm`` beyond where that line's stood."""
+        r = self.params.roi_rk
+        for u, tip in self._still:
+            turn, shift = _axis_change(u, tip, m.direction, m.tip)
+            if turn <= r.max_axis_jump_deg and shift <= r.max_axis_shift_mm and \
+                    float((m.tip - tip) @ u) < 0.5 * r.rival_advance_mm:
+                return "a line that stood still before, its tip where it stood: no needle"
+        return None
 
     def _advancing_rival(self, frame: Frame, vol: Volume, level: float, tip: np.ndarray,
                          direction: np.ndarray) -> Measurement | None:
@@ -259,7 +304,8 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
             why = None if not m.ok else (
                 runs_out(vol, m, r.init_tip_margin_mm)
                 or implausible_start(vol, m, p, r.init_min_likelihood, r.init_min_contrast,
-                                     r.init_max_sheet))
+                                     r.init_max_sheet)
+                or self._on_still_line(m))
             if why is not None:
                 m = fail(why, m.trials, m.roi_voxels, m.inliers)
             if m.ok and not choose:
@@ -337,6 +383,7 @@ class RoiRkTracker(VolumeTracker, method="roi-rk"):
             self._check_tip = kf.x[TIP].copy()
         self._prev_image = None
         self._rivals = []
+        self._still = []  # where the tissue stood in the volume before
 
 
 def _axis_change(direction: np.ndarray, point: np.ndarray, other_direction: np.ndarray,
