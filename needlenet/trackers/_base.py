@@ -31,6 +31,17 @@ def radius_variance(radii_mm: tuple[float, float], owner: str) -> float:
     return (b - a) ** 2 / 12.0
 
 
+def tip_spread_covariance(direction: np.ndarray, spread_mm: float) -> np.ndarray:
+    """Where the tip lies along the needle when a frame offered places for it ``spread_mm``
+    apart (the in-plane `line` tracker's tip step, the volume trackers' measurement): one of
+    them is right and the frame does not say which, so the tip is taken as anywhere between
+    them, evenly: variance spread^2 / 12 along ``direction`` (2D or 3D). Places that agree
+    add nothing; a map running on past the echo's end (the streak of unfocused imaging past
+    a tip, a tissue line continuing the needle) adds what that disagreement leaves unknown."""
+    d = np.asarray(direction, float)
+    return np.outer(d, d) * (float(spread_mm) ** 2 / 12.0)
+
+
 class Status(str, Enum):
     SEARCHING = "searching"  # no needle found yet (or re-detecting after a reset)
     TRACKING = "tracking"

@@ -10,24 +10,13 @@ import numpy as np
 
 from ..backends import NeedleLine, WorkingMap, extend_end
 from ..features import Frame
-from ._base import radius_variance
+from ._base import radius_variance, tip_spread_covariance
 from ._inplane_echo_end import echo_end
 from ._inplane_geometry import distance_to_edge, sample_grid
 from ._inplane_line_echo import echo_beyond
 from ._inplane_line_params import MAX_DISTANCE_MM
 
 __all__ = ["LineTip", "band_variance", "tip_spread_covariance"]
-
-
-def tip_spread_covariance(direction: np.ndarray, spread_mm: float) -> np.ndarray:
-    """Where the tip lies along the line when the frame offered places for it ``spread_mm``
-    apart (:meth:`LineTip._tip`): one of them is right and the frame does not say which, so
-    the tip is taken as anywhere between them, evenly: variance spread^2 / 12 along
-    ``direction``. A frame whose map, tip map and echo end agree adds nothing; one whose
-    map runs on past the echo's end (the streak of unfocused imaging past a tip, a tissue
-    line continuing the needle) adds what that disagreement leaves unknown."""
-    d = np.asarray(direction, float)
-    return np.outer(d, d) * (float(spread_mm) ** 2 / 12.0)
 
 
 def band_variance(wm: WorkingMap, seg: NeedleLine, level: float, half_mm: float) -> float:

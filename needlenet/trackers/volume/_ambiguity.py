@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._base import tip_spread_covariance
 from ._geometry import Volume, perpendiculars
 
 __all__ = ["BAND_READ_MM", "measurement_ambiguity"]
@@ -29,8 +30,7 @@ def measurement_ambiguity(vol: Volume, model, a_entry: float, a_tip: float, leve
     the tip's candidate parameters."""
     u = np.asarray(model.principal_direction, float)
     u = u / np.linalg.norm(u)
-    spread = max(places) - min(places) if places else 0.0
-    along = np.outer(u, u) * spread ** 2 / 12.0
+    along = tip_spread_covariance(u, max(places) - min(places) if places else 0.0)
     # read at the voxel size, at most _SAMPLES along the axis and across it (fine voxels)
     step = float(np.min(vol.spacing))
     length = a_tip - a_entry
