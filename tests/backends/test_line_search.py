@@ -74,6 +74,41 @@ def test_refine_line_recovers_a_noisy_line_by_total_least_squares():
     assert abs((c - np.array([5.0, 12.0])) @ n) < 0.05
 
 
+def test_refine_line_agrees_with_numpys_weighted_covariance():
+    """Each pass is the weighted principal axis of the points in its band: numpy's cov with
+    those weights (another normalisation, the same axis) on the points the band selects."""
+    rng = np.random.default_rng(7)
+    theta = np.deg2rad(128.0)
+    d = np.array([np.cos(theta), np.sin(theta)])
+    n = np.array([-d[1], d[0]])
+    t = rng.uniform(-15, 15, 300)
+    pts = np.vstack([np.array([20.0, 9.0]) + t[:, None] * d
+                     + rng.normal(0, 0.3, 300)[:, None] * n, rng.uniform(0, 40, (700, 2))])
+    w = rng.uniform(0.1, 1.0, len(pts))
+    rho = float(np.array([20.0, 9.0]) @ n) + 0.3
+    c, dd = refine_line(pts, w, theta, rho, (1.5,))
+    sel = np.abs(pts @ n - rho) <= 1.5
+    want_c = np.average(pts[sel], axis=0, weights=w[sel])
+    want_d = np.linalg.eigh(np.cov(pts[sel].T, aweights=w[sel]))[1][:, 1]
+    np.testing.assert_allclose(c, want_c, atol=1e-9)
+    assert abs(dd @ want_d) == pytest.approx(1.0, abs=1e-12)
+    assert refine_line(pts[:1], w[:1], theta, rho, (1.5,)) is None  # one point: no line
+
+
+def test_a_line_meets_the_map_box_where_its_slabs_overlap():
+    wm = WorkingMap(np.zeros((51, 101), np.float32), -10.0, 0.0, 0.2)  # x -10..10, z 0..10
+    for c, d, want in [((0.0, 5.0), (1.0, 0.0), (-10.0, 10.0)),     # across, along x only
+                       ((3.0, 2.0), (0.0, -1.0), (-8.0, 2.0)),      # along z only, upwards
+                       ((0.0, 0.0), (0.6, 0.8), (0.0, 12.5)),       # corner to the far edge
+                       ((0.0, 20.0), (1.0, 0.0), None)]:             # below the map
+        seg = line_segment(wm, np.array(c), np.array(d), 0.5, LineSearchParams())
+        if want is None:
+            assert seg.reason == "the line misses the image"
+            continue
+        profile_mm = (len(seg.profile) - 1) * 0.2 if seg.profile is not None else None
+        assert not seg and profile_mm == pytest.approx(want[1] - want[0], abs=0.2 + 1e-9)
+
+
 def test_segment_ends_where_the_evidence_ends():
     step = 0.2
     m = _draw_segment((200, 200), (5.0, 6.0), (30.0, 21.0), step, value=0.9, width_px=3)
