@@ -13,6 +13,8 @@ __all__ = ["ImagingParams", "log_compress", "display_mask", "speckle_log_mean_db
 _FWHM = 2.0 * np.sqrt(2.0 * np.log(2.0))  # FWHM of a Gaussian = 2.3548 sigma
 
 
+_MAX_DB = 200.0  # the largest gain or level in dB a parameter may give
+
 @dataclass(frozen=True)
 class ImagingParams:
     """Scanner settings (units in the names). Defaults: a 5 MHz linear array."""
@@ -67,6 +69,13 @@ class ImagingParams:
                 raise ValueError(f"ImagingParams.{name} must be positive, got {v}")
         if self.attenuation_db_cm_mhz < 0:
             raise ValueError("ImagingParams.attenuation_db_cm_mhz must be >= 0")
+        # gains in dB become amplitudes 10^(dB/20): beyond +-200 dB (a factor of 10^10) a
+        # level means nothing on an 8-bit image, and beyond some 6,000 dB it overflows
+        levels = {"noise_db": [self.noise_db], "tgc_curve_db": list(self.tgc_curve_db)}
+        for name, values in levels.items():
+            if not all(np.isfinite(v) and abs(v) <= _MAX_DB for v in values):
+                raise ValueError(f"ImagingParams.{name} must lie within +-{_MAX_DB:g} dB, got "
+                                 f"{values if len(values) != 1 else values[0]}")
         if int(self.compound_looks) != self.compound_looks or self.compound_looks < 1:
             raise ValueError("ImagingParams.compound_looks must be a whole number >= 1, got "
                              f"{self.compound_looks}")

@@ -56,6 +56,8 @@ def run(args) -> int:
     overrides = _overrides(args, synth.SCENARIOS[args.scenario])
     try:
         params = synth.scenario_params(args.scenario, **overrides)  # validate before any work
+        if hasattr(params, "imaging"):
+            params.imaging()  # the scanner's settings the scenario derives, checked too
     except (ValueError, TypeError) as exc:
         raise CLIError(f"synth: {exc}") from None
     _check_readable(params)

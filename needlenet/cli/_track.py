@@ -11,12 +11,14 @@ from ._common import CLIError, check_output, check_plus_output, seed
 def add_parser(sub) -> None:
     p = sub.add_parser("track", help="track the needle in a sequence file or a recording",
                        description="Run a tracker on a sequence file or a recording of your own "
-                                   "(PLUS .mha/.mhd, NRRD, a folder of image frames, a video); "
+                                   "(DICOM, PLUS .mha/.mhd, NRRD, a folder of image frames, a "
+                                   "video); "
                                    "with labels, report the paper's metrics. Results can be "
                                    "written as a PLUS sequence for 3D Slicer and streamed live "
                                    "over OpenIGTLink.")
-    p.add_argument("file", help="sequence file (.npz), PLUS sequence (.mha/.mhd), NRRD (.nrrd), "
-                                "a folder of PNG frames or a video (.mp4, .avi, ...)")
+    p.add_argument("file", help="sequence file (.npz), DICOM cine loop (.dcm, or a scanner's "
+                                "IM_0001), PLUS sequence (.mha/.mhd), NRRD (.nrrd), a folder of "
+                                "PNG frames or a video (.mp4, .avi, ...)")
     p.add_argument("--tracker", choices=["inplane", "volume", "axial"],
                    help="default: the file's modality (2D frames without one: inplane)")
     p.add_argument("--method",

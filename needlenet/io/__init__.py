@@ -1,6 +1,6 @@
-"""Reading and writing: sequence files (via synth), recordings of your own (PLUS sequence
-metafiles, NRRD, image folders, videos), PLUS output of results, OpenIGTLink streaming and
-overlay animations."""
+"""Reading and writing: sequence files (via synth), recordings of your own (DICOM cine loops,
+PLUS sequence metafiles, NRRD, image folders, videos), PLUS output of results, OpenIGTLink
+streaming and overlay animations."""
 
 from ._atomic import atomic_write
 from ._errors import RecordingError, StreamError

@@ -26,9 +26,11 @@ INPAINT_RADIUS_PX = 3
 
 def colour_marks(rgb: np.ndarray) -> np.ndarray:
     """Boolean mask (H, W) of the saturated coloured pixels of a uint8 frame (H, W, >= 3)."""
-    c = rgb[..., :3]
-    hi = c.max(axis=-1).astype(np.int16)
-    chroma = hi - c.min(axis=-1)
+    r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
+    # elementwise over the three planes: numpy's reduction over a last axis of three is
+    # twenty times slower on a frame
+    hi = np.maximum(np.maximum(r, g), b).astype(np.int16)
+    chroma = hi - np.minimum(np.minimum(r, g), b)
     return (chroma >= CHROMA_MIN) & (chroma >= SATURATION_MIN * hi)
 
 

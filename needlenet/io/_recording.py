@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._dicom import DICOM_SUFFIXES, is_dicom, read_dicom
 from ._errors import RecordingError
 from ._frames import (
     VIDEO_SUFFIXES,
@@ -54,8 +55,8 @@ __all__ = ["load_recording", "save_plus_sequence", "sequence_to_plus", "needle_t
            "parse_spacing", "parse_crop", "RECORDING_KINDS", "DEFAULT_DYNAMIC_RANGE_DB",
            "NEEDLE_TIP", "NEEDLE_ENTRY", "PROBE_POSE"]
 
-RECORDING_KINDS = ".npz, .mha/.mhd (PLUS), .nrrd/.nhdr, a folder of images, or a video (" + \
-    ", ".join(VIDEO_SUFFIXES) + ")"
+RECORDING_KINDS = ".npz, .mha/.mhd (PLUS), .nrrd/.nhdr, DICOM (.dcm, or no suffix), a folder " \
+    "of images, or a video (" + ", ".join(VIDEO_SUFFIXES) + ")"
 DEFAULT_DYNAMIC_RANGE_DB = 60.0  # recorded in meta as assumed when the file does not say
 NEEDLE_TIP, NEEDLE_ENTRY, PROBE_POSE = "NeedleTipToReference", "NeedleEntryToReference", \
     "ProbeToReference"
@@ -272,15 +273,18 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
 
     By suffix: ``.npz`` (the sequence file), ``.mha``/``.mhd`` (a PLUS sequence metafile,
     see :mod:`needlenet.io._metaimage`), ``.nrrd``/``.nhdr`` (see :mod:`needlenet.io._nrrd`),
-    a folder of image files or a video (see :mod:`needlenet.io._frames`; a sidecar JSON may
-    give the geometry).
+    DICOM (``.dcm``, or any file with DICOM's signature: a scanner's cine loop, its spacing,
+    image region and frame times read from the file, see :mod:`needlenet.io._dicom`), a folder
+    of image files or a video (see :mod:`needlenet.io._frames`; a sidecar JSON may give the
+    geometry).
 
     - ``modality``: for 2D frames ``inplane`` (the default) or ``axial``; 3D frames are
       ``volume``. A file written by needlenet carries its own.
     - ``spacing_mm``: mm per pixel, one number or one per array axis ([depth, lateral] or
       [depth, elevation, lateral]); overrides the file's (PLUS files often say 1 1 1, pixels).
       Required when the file gives none.
-    - ``crop``: ``(x, y, w, h)`` in pixels of 2D frames (the image area of a screen capture).
+    - ``crop``: ``(x, y, w, h)`` in pixels of 2D frames (the image area of a screen capture;
+      a DICOM file's calibrated image region when not given).
     - ``fps``: a fixed frame rate, overriding the file's frame times.
     - ``pose_transform``: the PLUS transform used as ``probe_pose`` (when every frame's
       status is OK).
@@ -372,6 +376,16 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
             rec.timestamps_s
         warnings += rec.meta.pop("warnings", [])
         meta.update(format="nrrd", **rec.meta)
+    elif suffix in DICOM_SUFFIXES or is_dicom(path):
+        rec = read_dicom(path)
+        images, file_sp, origin, file_ts = rec.images, rec.spacing_mm, rec.origin_mm, \
+            rec.timestamps_s
+        if crop is None:
+            crop = rec.crop  # the scanner's image region: its text and scales cut away
+        elif rec.crop is not None:
+            rec.meta["dicom"]["region_crop_replaced"] = list(rec.crop)
+        warnings += rec.notes
+        meta.update(rec.meta)
     else:
         raise RecordingError(f"{src}: unknown recording type {suffix or '(no suffix)'!r}; "
                              f"expected {RECORDING_KINDS}")
@@ -390,7 +404,8 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
             modality = "inplane"
     sp = spacing_mm if spacing_mm is not None else file_sp
     if sp is None:
-        where = {"plus": "ElementSpacing", "nrrd": "space directions / spacings"}.get(
+        where = {"plus": "ElementSpacing", "nrrd": "space directions / spacings",
+                 "dicom": "a calibrated SequenceOfUltrasoundRegions item or PixelSpacing"}.get(
             meta.get("format"), "a sidecar JSON's spacing_mm")
         raise RecordingError(f"{src}: no pixel spacing ({where}); pass spacing_mm "
                              f"(--spacing MM or --spacing {'DZ,DY,DX' if nd == 3 else 'DZ,DX'})")
@@ -401,7 +416,8 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
         raise RecordingError(f"{src}: spacing {sp.tolist()} has {sp.size} values for {nd}D "
                              "frames")
     check_spacing(sp, src, "--spacing" if spacing_mm is not None else {
-        "plus": "ElementSpacing", "nrrd": "space directions / spacings", "image folder":
+        "plus": "ElementSpacing", "nrrd": "space directions / spacings",
+        "dicom": "the ultrasound region's PhysicalDeltaY/X or PixelSpacing", "image folder":
         "the sidecar's spacing_mm", "video": "the sidecar's spacing_mm"}.get(
         meta.get("format"), "spacing_mm"))
     if spacing_mm is not None:
@@ -411,6 +427,7 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
         raise RecordingError(f"{src}: origin {origin.tolist()} has {origin.size} values for "
                              f"{nd}D frames")
     check_origin(origin, src, {"plus": "Offset", "nrrd": "space origin / axis mins",
+                               "dicom": "the ultrasound region's reference pixel",
                                "image folder": "the sidecar's origin_mm",
                                "video": "the sidecar's origin_mm"}.get(meta.get("format"),
                                                                        "origin_mm"))
@@ -427,11 +444,13 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
     check_meta_numbers(meta, src)
     kw.setdefault("dynamic_range_db", DEFAULT_DYNAMIC_RANGE_DB)
     if "dynamic_range_db" not in sidecar and meta.get("format") in ("image folder", "video",
-                                                                    "nrrd"):
+                                                                    "nrrd", "dicom"):
         meta["dynamic_range_db_assumed"] = True
     ts = _timestamps(T, file_ts, fps, src, {
         "plus": "Seq_FrameNNNN_Timestamp on every frame",
-        "nrrd": "the list axis' 'index values'"}.get(meta.get("format"), "fps or timestamps_s"))
+        "nrrd": "the list axis' 'index values'",
+        "dicom": "FrameTimeVector, FrameTime, CineRate or RecommendedDisplayFrameRate"}.get(
+            meta.get("format"), "fps or timestamps_s"))
     seq_kw = dict(images=images, spacing_mm=sp, origin_mm=origin, modality=modality,
                   timestamps_s=ts, meta=meta, **kw)
     if plus is not None:

@@ -26,6 +26,8 @@ def test_synth_writes_sequence_and_preview(tmp_path, capsys):
     (["synth", "inplane", "--out", "{d}/missing/x.npz"], "does not exist"),
     (["synth", "axial", "--out", "{d}/x.npz", "--angle", "30"], "--angle does not apply"),
     (["synth", "inplane", "--out", "{d}/x.npz", "--param", "bogus=1"], "no parameter 'bogus'"),
+    (["synth", "volume", "--out", "{d}/x.npz", "--param", "noise_db=1e300"],
+     "noise_db must lie within +-200 dB"),
 ])
 def test_bad_input_one_line_error_nothing_written(tmp_path, capsys, argv, msg):
     rc = main([a.format(d=tmp_path) for a in argv])

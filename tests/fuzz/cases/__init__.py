@@ -5,7 +5,9 @@ the readers take: ``synth.generate`` sequences (in-plane 5 x 100 x 120 px, axial
 volume 3 x 32^3: every case then runs in well under a second) written as ``.npz``, PLUS
 ``.seq.mha`` compressed and not, ``.mhd`` + ``.raw`` / ``.zraw``, float PLUS pixels, NRRD with
 the data attached (raw and gzip) and detached, a float NRRD, a PNG folder with and without a
-sidecar JSON, an ``.avi`` with and without one, and tiny valid ONNX models (made with
+sidecar JSON, an ``.avi`` with and without one, DICOM cine loops (gray with a calibrated
+ultrasound region, also without a suffix; colour JPEG; RLE with PixelSpacing), and tiny valid
+ONNX models (made with
 ``onnx.helper``, like ``tests/features/test_model_checks.py``).
 
 **Cases.** :func:`generate_cases` yields :class:`Case` objects: an id, a family, a one-line
@@ -15,7 +17,7 @@ happen: by default a clean one-line error or a clean run; cases on output paths 
 outputs that may be written (anything else that changes is damage). Case ``i`` of seed ``s``
 draws from ``numpy.random.default_rng([s, i])`` and its family is fixed by ``i``
 (:data:`SCHEDULE`, round robin), so the same seed gives the same cases, the first ``n`` cases
-of a longer run are the ``n`` cases of a shorter one, and any 49 consecutive cases cover
+of a longer run are the ``n`` cases of a shorter one, and any 51 consecutive cases cover
 every family.
 
 **Families** (see :data:`FAMILIES`): bytes flipped or cut in every file kind; npz arrays with
@@ -34,7 +36,9 @@ paths (existing directories, the input and the files beside it, missing or unwri
 directories, existing files with and without ``--overwrite``, names too long); ``synth``
 options; special files (FIFOs, devices, symlinks, folders named like files); bombs (files of
 kilobytes whose headers claim, or whose compressed data inflates to, gigabytes); and
-controls, valid inputs that must track.
+DICOM attributes (the pixel module, the transfer syntax, frame times, pixel spacing and the
+ultrasound region's calibration) set to bad values or removed, and DICOM bytes flipped or cut;
+and controls, valid inputs that must track.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ import numpy as np
 
 from ._base import Base, Case
 from ._cli import fam_model, fam_options, fam_output, fam_param, fam_synth
+from ._dicom import fam_dicom
 from ._npz_plus import fam_npz_arrays, fam_npz_bytes, fam_pixels, fam_plus_bytes, fam_plus_header
 from ._nrrd_frames import fam_frames, fam_nrrd_bytes, fam_nrrd_header, fam_video
 from ._special import fam_bomb, fam_control, fam_special
@@ -57,7 +62,7 @@ FAMILIES = {
     "plus-bytes": fam_plus_bytes, "pixels": fam_pixels, "nrrd-header": fam_nrrd_header,
     "nrrd-bytes": fam_nrrd_bytes, "frames": fam_frames, "video": fam_video, "model": fam_model,
     "param": fam_param, "options": fam_options, "output": fam_output, "synth": fam_synth,
-    "special": fam_special, "control": fam_control, "bomb": fam_bomb,
+    "special": fam_special, "control": fam_control, "bomb": fam_bomb, "dicom": fam_dicom,
 }
 # one round of the schedule: the families weighted by how many distinct fields they touch
 SCHEDULE = ("plus-header", "npz-arrays", "param", "output", "model", "options", "nrrd-header",
@@ -66,7 +71,8 @@ SCHEDULE = ("plus-header", "npz-arrays", "param", "output", "model", "options", 
             "frames", "nrrd-header", "special", "control", "plus-header", "npz-arrays",
             "param", "output", "model", "options", "video", "synth", "pixels", "nrrd-header",
             "frames", "plus-bytes", "npz-bytes", "plus-header", "output", "param", "model",
-            "options", "npz-arrays", "nrrd-bytes", "special", "control", "synth", "bomb")
+            "options", "npz-arrays", "nrrd-bytes", "special", "control", "synth", "bomb",
+            "dicom", "dicom")
 
 
 def make_case(seed: int, index: int, base: Base) -> Case:

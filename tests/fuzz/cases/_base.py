@@ -93,6 +93,10 @@ INPUTS: dict[str, tuple[tuple[str, ...], str, tuple[str, ...]]] = {
              ("--spacing", "0.1", "--fps", "20")),
     "clip.avi": (("clip.avi", "clip.json"), "inplane", ()),
     "bare.avi": (("bare.avi",), "inplane", ("--spacing", "0.1")),
+    "i.dcm": (("i.dcm",), "inplane", ()),
+    "IM_0001": (("IM_0001",), "inplane", ()),
+    "ic.dcm": (("ic.dcm",), "inplane", ()),
+    "ir.dcm": (("ir.dcm",), "inplane", ()),
 }
 PLUS_INPUTS = ("i.seq.mha", "iu.seq.mha", "a.seq.mha", "v.seq.mha", "vu.seq.mha", "if.seq.mha",
                "i.mhd", "iz.mhd")
@@ -277,6 +281,9 @@ class Base:
         f["frames/frames.json"] = json.dumps(SIDECAR).encode()
         f["clip.avi"] = f["bare.avi"] = _avi(s.images, root / "tmp.avi")
         f["clip.json"] = json.dumps(SIDECAR).encode()
+        from ._dicom import dicom_inputs
+
+        f.update(dicom_inputs(s, root))
         for modality, name in MODELS.items():
             f[name] = make_model(modality)
         self.files = f
