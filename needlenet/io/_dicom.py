@@ -14,8 +14,9 @@ it on the screen:
   ms, else ``Cine Rate`` or ``Recommended Display Frame Rate`` (frames/s);
 - **pixels**, decoded a frame at a time by pydicom as the tracker reads them (uncompressed,
   RLE, JPEG baseline and extended, JPEG 2000: Pillow's decoders), as uint8 gray: colour (RGB,
-  or the YBR of a JPEG-compressed loop) as luma with the scanner's coloured marks filled in
-  (as for videos), ``MONOCHROME1`` inverted, more than 8 bits scaled from their stored range.
+  the YBR of a JPEG-compressed loop, or a palette image through its colour tables) as luma
+  with the scanner's coloured marks filled in (as for videos), ``MONOCHROME1`` inverted, more
+  than 8 bits scaled from their stored range.
 
 Transfer syntaxes Pillow cannot decode (JPEG lossless, JPEG-LS) are refused with the syntax
 named and a way to convert the file; so are 3D volumes stored as one multi-frame DICOM.
@@ -236,6 +237,7 @@ class _Decoder:
     bits_stored: int
     signed: bool
     compressed: bool
+    header: object = None  # the data set without its pixels (a palette's lookup tables)
     _held: object = None
 
     def read(self, i: int) -> np.ndarray:
@@ -260,6 +262,12 @@ class _Decoder:
         return pixel_array(self._held, index=i)
 
     def _gray(self, arr: np.ndarray) -> np.ndarray:
+        if self.photometric == "PALETTE COLOR":  # indices into the file's colour tables
+            from pydicom.pixels import apply_color_lut
+
+            arr = apply_color_lut(arr, self.header)
+            if arr.dtype != np.uint8:  # 16-bit table entries
+                arr = (arr >> 8).astype(np.uint8)
         if arr.ndim == 3:  # RGB (YBR converted by pydicom): the luma of BGR, marks filled
             if arr.dtype != np.uint8:
                 arr = _scaled(arr, self.bits_stored, self.signed)
@@ -306,7 +314,7 @@ def _decoder(ds, src: str) -> _Decoder:
         check_allocation((os.path.getsize(src),), 1, src, "its compressed pixel data")
     return _Decoder(src, str(getattr(syntax, "name", syntax)),
                     str(ds.get("PhotometricInterpretation", "")), bits_stored,
-                    _int(ds, "PixelRepresentation", src, default=0) == 1, compressed)
+                    _int(ds, "PixelRepresentation", src, default=0) == 1, compressed, ds)
 
 
 def _geometry(ds, src: str, shape: tuple[int, int]):

@@ -90,10 +90,36 @@ def test_a_jpeg_colour_loop_decodes_to_the_frames_within_jpeg_error(seq, tmp_pat
     assert abs(line.mean() - im[:, 300:303, 60:240].mean()) < 0.3 * green_luma
 
 
-@pytest.mark.parametrize("kind", ["rle", "monochrome1", "12-bit"])
+def _palette(path, red, green, blue):
+    """The file at ``path`` made a PALETTE COLOR image with these 256-entry 8-bit tables."""
+    import pydicom
+
+    ds = pydicom.dcmread(path)
+    ds.PhotometricInterpretation = "PALETTE COLOR"
+    for name, table in (("Red", red), ("Green", green), ("Blue", blue)):
+        key = f"{name}PaletteColorLookupTableDescriptor"
+        setattr(ds, key, [256, 0, 8])
+        ds[key].VR = "US"
+        setattr(ds, f"{name}PaletteColorLookupTableData", np.asarray(table, np.uint8).tobytes())
+    ds.save_as(path, enforce_file_format=True)
+    return path
+
+
+@pytest.mark.parametrize("kind", ["rle", "monochrome1", "12-bit", "ybr", "palette"])
 def test_lossless_encodings_read_back_exactly(seq, tmp_path, kind):
+    from pydicom.pixels import convert_color_space
+
     im = np.asarray(seq.images)
-    if kind == "rle":
+    ramp = np.arange(256)
+    if kind == "ybr":  # uncompressed YBR_FULL: pydicom's conversion back to RGB, then luma
+        rgb = np.repeat(im[..., None], 3, axis=-1)
+        ybr = np.stack([convert_color_space(f, "RGB", "YBR_FULL") for f in rgb])
+        p = write_dicom(tmp_path / "f.dcm", ybr, pixel_spacing=[0.1, 0.1],
+                        photometric="YBR_FULL")
+    elif kind == "palette":  # indices through the tables: gray tables, the index reversed
+        p = _palette(write_dicom(tmp_path / "f.dcm", 255 - im, pixel_spacing=[0.1, 0.1]),
+                     255 - ramp, 255 - ramp, 255 - ramp)
+    elif kind == "rle":
         p = write_dicom(tmp_path / "f.dcm", im, pixel_spacing=[0.1, 0.1], compression="rle")
     elif kind == "monochrome1":  # the lowest value is white
         p = write_dicom(tmp_path / "f.dcm", 255 - im, pixel_spacing=[0.1, 0.1],
@@ -103,7 +129,7 @@ def test_lossless_encodings_read_back_exactly(seq, tmp_path, kind):
         p = write_dicom(tmp_path / "f.dcm", stored, pixel_spacing=[0.1, 0.1], bits_stored=12)
     rec = load_recording(p)
     got = np.asarray(rec.images).astype(int)
-    assert np.abs(got - im).max() <= (1 if kind == "12-bit" else 0)
+    assert np.abs(got - im).max() <= (1 if kind in ("12-bit", "ybr") else 0)
     assert rec.meta["dicom"]["geometry_from"] == "PixelSpacing"
     assert rec.origin_mm.tolist() == [0.0, 0.0]
 
