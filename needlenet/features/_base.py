@@ -41,6 +41,34 @@ class Frame:
     probe_pose: np.ndarray | None = None
     extras: dict = field(default_factory=dict)
 
+    @classmethod
+    def from_image(cls, image, spacing_mm, *, t: float = 0.0, index: int = 0,
+                   origin_mm=None, insertion_speed_mm_s: float | None = None) -> Frame:
+        """A frame of your own: ``image`` (H, W) for a 2D frame or (D, H, W) for a volume,
+        in array order (depth first); ``spacing_mm`` one number (square pixels) or one per
+        axis, depth first; ``origin_mm`` the position of pixel 0 (default 0), depth first;
+        ``t`` its time (s). A ValueError names what does not fit."""
+        im = np.asarray(image)
+        if im.ndim not in (2, 3):
+            raise ValueError(f"Frame.from_image: image must be 2D (H, W) or 3D (D, H, W), got "
+                             f"shape {im.shape} (convert colour frames to gray first)")
+        if im.dtype.kind not in "uif":
+            raise ValueError(f"Frame.from_image: image must hold numbers, got {im.dtype}")
+        sp = np.atleast_1d(np.asarray(spacing_mm, float))
+        if sp.size == 1:
+            sp = np.repeat(sp, im.ndim)
+        if sp.shape != (im.ndim,) or not np.all(np.isfinite(sp)) or np.any(sp <= 0):
+            raise ValueError(f"Frame.from_image: spacing_mm must be one positive number or "
+                             f"{im.ndim} (depth first), got {np.asarray(spacing_mm).tolist()}")
+        org = np.zeros(im.ndim) if origin_mm is None else np.asarray(origin_mm, float)
+        if org.shape != (im.ndim,) or not np.all(np.isfinite(org)):
+            raise ValueError(f"Frame.from_image: origin_mm must be {im.ndim} finite numbers "
+                             f"(depth first), got {np.asarray(origin_mm).tolist()}")
+        if not np.isfinite(t):
+            raise ValueError(f"Frame.from_image: t must be a finite time in seconds, got {t}")
+        grid = Grid(im.shape, tuple(float(v) for v in sp), tuple(float(v) for v in org))
+        return cls(im, grid, float(t), int(index), insertion_speed_mm_s)
+
 
 @dataclass
 class Likelihood:

@@ -54,9 +54,18 @@ def tracker_class(name: str, method: str | None = None):
     return getattr(importlib.import_module(module), cls)
 
 
-def make_tracker(name: str, method: str, features: str = "classical", model: str | None = None,
-                 **params):
-    """A tracker of modality ``name`` with ``method`` and classical or learned features."""
+def make_tracker(name: str, method: str | None = None, features: str | None = None,
+                 model: str | None = None, **params):
+    """A tracker of modality ``name`` (``inplane``, ``volume``, ``axial``) with ``method``
+    and ``features`` (``classical`` or ``learned``; ``model``: an ONNX file for the learned
+    map); either left out, the one ``needlenet track`` runs (:data:`DEFAULT_METHODS`,
+    :data:`DEFAULT_FEATURES`; learned when a model is given). ``params``: the tracker's own
+    keyword arguments (``params=``, ``seed=`` or ``rng=``)."""
+    if name not in TRACKERS:
+        raise ValueError(f"unknown tracker {name!r}; choose one of {', '.join(TRACKERS)}")
+    method = DEFAULT_METHODS[name] if method is None else method
+    if features is None:
+        features = "learned" if model is not None else DEFAULT_FEATURES[name]
     if method not in tracker_methods(name):
         raise ValueError(f"tracker {name!r} has no method {method!r}; choose one of "
                          f"{', '.join(tracker_methods(name))}")

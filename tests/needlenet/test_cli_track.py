@@ -192,12 +192,12 @@ def test_constant_and_nan_frames_are_lost_not_a_crash(tmp_path):
     seq.images[2] = 128  # a constant frame in the middle of the sequence
     from needlenet.trackers import make_tracker
 
-    est = make_tracker("inplane", "kf").run(seq)
+    est = make_tracker("inplane", "kf", "classical").run(seq)
     assert len(est) == 6
     assert est[2].status.value in ("lost", "searching") and "constant" in est[2].reason
     from needlenet.features import Frame
 
-    tr = make_tracker("inplane", "kf")
+    tr = make_tracker("inplane", "kf", "classical")
     frame = Frame(np.full(seq.images.shape[1:], np.nan, np.float32), seq.grid())
     assert tr.update(frame).status.value == "searching"
 
