@@ -18,7 +18,8 @@ def add_parser(sub) -> None:
                                    "over OpenIGTLink.")
     p.add_argument("file", help="sequence file (.npz), DICOM cine loop (.dcm, or a scanner's "
                                 "IM_0001), PLUS sequence (.mha/.mhd), NRRD (.nrrd), a folder of "
-                                "PNG frames or a video (.mp4, .avi, ...)")
+                                "PNG frames, a video (.mp4, .avi, ...), or a live OpenIGTLink "
+                                "image stream igtl://HOST[:PORT][/DEVICE] (a PLUS Server's)")
     p.add_argument("--tracker", choices=["inplane", "volume", "axial"],
                    help="default: the file's modality (2D frames without one: inplane)")
     p.add_argument("--method",
@@ -52,6 +53,11 @@ def add_parser(sub) -> None:
                    help="127.0.0.1 (default, this machine only) or a network interface name")
     p.add_argument("--igtl-wait", type=float, default=0.0, metavar="S",
                    help="wait up to S seconds for an OpenIGTLink client before tracking")
+    p.add_argument("--igtl-idle", type=float, default=5.0, metavar="S",
+                   help="igtl:// input: the stream has ended when no frame comes for S "
+                        "seconds (default 5)")
+    p.add_argument("--igtl-connect", type=float, default=30.0, metavar="S",
+                   help="igtl:// input: wait up to S seconds for the first frame (default 30)")
     p.add_argument("--realtime", action="store_true",
                    help="pace the frames at their timestamps (for watching a stream live)")
     p.add_argument("--seed", type=seed, default=0, help="seed of randomised methods")
@@ -66,6 +72,10 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     out_json, overlay, out_plus = _check_outputs(args)
+    if str(args.file).startswith("igtl://"):
+        from ._track_live import run_live
+
+        return run_live(args, out_json, overlay, out_plus)
     if args.igtl is not None and not 0 <= args.igtl <= 65535:
         raise CLIError(f"--igtl {args.igtl}: a port is 0 to 65535")
     if args.angle is not None and args.tracker not in (None, "inplane"):
@@ -309,16 +319,35 @@ def _model_grid(tracker) -> dict:
 
 def _report(args, seq, estimates, out_json, overlay, out_plus, model_grid=None) -> None:
     """The summary on stdout, then the ``--json``, ``--overlay`` and ``--out-plus`` files."""
+    from ..eval import evaluate
+
+    metrics = evaluate(args.tracker, estimates, seq)["summary"] if seq.has_labels else None
+    write_summary(args, estimates, out_json, metrics, model_grid)
+    if overlay is not None:
+        from ..io import write_overlay
+
+        write_overlay(overlay, seq, estimates)
+        print(f"wrote {overlay}")
+    if out_plus is not None:
+        from ..io import RecordingError, save_plus_sequence
+
+        try:
+            save_plus_sequence(seq, out_plus, estimates, overwrite=args.overwrite)
+        except RecordingError as exc:
+            raise CLIError(f"--out-plus: {exc}") from None
+        print(f"wrote {out_plus}")
+
+
+def write_summary(args, estimates, out_json, metrics=None, model_grid=None) -> None:
+    """The summary on stdout (the paper's ``metrics`` of a labelled recording, else the
+    latency), and the ``--json`` file with every frame's estimate."""
     import json
 
-    from ..eval import evaluate, latency_summary
+    from ..eval import latency_summary
 
     summary = {"file": str(args.file), "tracker": args.tracker, "method": args.method,
-               "features": args.features, "frames": seq.n_frames, **(model_grid or {})}
-    if seq.has_labels:
-        summary.update(evaluate(args.tracker, estimates, seq)["summary"])
-    else:
-        summary.update(latency_summary(estimates))
+               "features": args.features, "frames": len(estimates), **(model_grid or {})}
+    summary.update(metrics if metrics is not None else latency_summary(estimates))
     statuses = [e.status.value for e in estimates]
     summary["status_counts"] = {s: statuses.count(s) for s in sorted(set(statuses))}
     # on stdout too, as plain numbers: how often the tracker saw the needle, and how often it
@@ -335,19 +364,6 @@ def _report(args, seq, estimates, out_json, overlay, out_plus, model_grid=None) 
                                        "summary": summary}), indent=1, allow_nan=False)
         atomic_write({out_json: lambda fh: fh.write(text.encode())}, overwrite=True)
         print(f"wrote {out_json}")
-    if overlay is not None:
-        from ..io import write_overlay
-
-        write_overlay(overlay, seq, estimates)
-        print(f"wrote {overlay}")
-    if out_plus is not None:
-        from ..io import RecordingError, save_plus_sequence
-
-        try:
-            save_plus_sequence(seq, out_plus, estimates, overwrite=args.overwrite)
-        except RecordingError as exc:
-            raise CLIError(f"--out-plus: {exc}") from None
-        print(f"wrote {out_plus}")
 
 
 def finite_json(obj):
