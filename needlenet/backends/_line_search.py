@@ -22,6 +22,8 @@ from scipy import ndimage
 
 from synth import Grid
 
+from .._sampling import remap_points
+
 __all__ = ["LineSearchParams", "NeedleLine", "WorkingMap", "working_map", "hough_peaks",
            "refine_line", "line_segment", "extend_end", "find_needle_line"]
 
@@ -118,10 +120,7 @@ class WorkingMap:
         p = np.asarray(pts, np.float32)
         mx = ((p[..., 0] - self.x0) / self.step).astype(np.float32)
         my = ((p[..., 1] - self.z0) / self.step).astype(np.float32)
-        flat_x, flat_y = mx.reshape(1, -1), my.reshape(1, -1)
-        out = cv2.remap(self.values, flat_x, flat_y, interpolation=cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-        return out.reshape(p.shape[:-1])
+        return remap_points(self.values, mx, my)
 
 
 def working_map(values: np.ndarray, grid: Grid, step_mm: float) -> WorkingMap:

@@ -22,6 +22,8 @@ import numpy as np
 
 from synth import Grid
 
+from .._sampling import remap_points
+
 __all__ = [
     "PAPER_PX_MM",
     "N_FEATURES",
@@ -265,10 +267,8 @@ def ray_profiles(image: np.ndarray, grid: Grid, anchor_mm, thetas_deg, rays_mm,
         + y_ * (vp[:, 0] / np.float32(dx))[:, None, None, None]
     row = np.float32((az - z0) / dz) + a_ * (vn[:, 1] / np.float32(dz))[:, None, None, None] \
         + y_ * (vp[:, 1] / np.float32(dz))[:, None, None, None]
-    shape = col.shape
-    samples = cv2.remap(im, col.reshape(-1, shape[-1]), row.reshape(-1, shape[-1]),
-                        interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return samples.reshape(shape).mean(axis=2)  # eq. (1): 1/(2s+1) sum_i I(i, y)
+    samples = remap_points(im, col, row, cv2.BORDER_REPLICATE)
+    return samples.mean(axis=2)  # eq. (1): 1/(2s+1) sum_i I(i, y)
 
 
 def ray_scores(R: np.ndarray, w_max: int) -> np.ndarray:

@@ -190,7 +190,7 @@ def _int(ds, key: str, src: str, default=None):
     v = ds.get(key, default)
     try:
         return int(v)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise RecordingError(f"{src}: {key} is {str(v)[:40]!r}, not a whole number") from None
 
 
@@ -330,7 +330,7 @@ def _geometry(ds, src: str, shape: tuple[int, int]):
             dx, dz = float(r.PhysicalDeltaX), float(r.PhysicalDeltaY)
             box = [int(r.RegionLocationMinX0), int(r.RegionLocationMinY0),
                    int(r.RegionLocationMaxX1), int(r.RegionLocationMaxY1)]
-        except (AttributeError, TypeError, ValueError):
+        except (AttributeError, TypeError, ValueError, OverflowError):
             continue  # a region without its calibration: not one to measure in
         if fmt != _SPATIAL_2D or units != (_CM, _CM) or not (dx and dz) or \
                 not (np.isfinite(dx) and np.isfinite(dz)):
@@ -350,12 +350,13 @@ def _geometry(ds, src: str, shape: tuple[int, int]):
         ref = [r.get(k_) for k_ in ("ReferencePixelX0", "ReferencePixelY0",
                                     "ReferencePixelPhysicalValueX",
                                     "ReferencePixelPhysicalValueY")]
-        if all(v is not None for v in ref):
-            rx, ry, px, py = (float(v) for v in ref)
-            region_x0 = (px - rx * dx) * 10.0
-            region_z0 = (py - ry * dz) * 10.0
-        else:
-            region_x0, region_z0 = 0.0, 0.0
+        region_x0, region_z0 = 0.0, 0.0  # without a reference pixel: the region's corner
+        try:
+            if all(v is not None for v in ref):
+                rx, ry, px, py = (float(v) for v in ref)
+                region_x0, region_z0 = (px - rx * dx) * 10.0, (py - ry * dz) * 10.0
+        except (TypeError, ValueError, OverflowError):
+            pass
         origin = np.array([region_z0 - y0 * spacing[0], region_x0 - x0 * spacing[1]])
         note = ""
         if len(regions) > 1:

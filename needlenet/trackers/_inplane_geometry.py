@@ -4,9 +4,9 @@ region (:mod:`._margins`)."""
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
+from .._sampling import remap_points
 from ..backends import NeedleLine
 from ..features import Frame
 from ._margins import imaged_region
@@ -61,10 +61,7 @@ def entry_to_tip(seg: NeedleLine, frame: Frame, min_angle_deg: float,
 def sample_grid(values: np.ndarray, grid, pts: np.ndarray) -> np.ndarray:
     """Bilinear samples of a map on ``grid`` at points (N, 2) in mm; 0 outside."""
     idx = grid.points_to_index(pts)  # (N, 2) as (row, col)
-    out = cv2.remap(values, idx[:, 1].astype(np.float32).reshape(1, -1),
-                    idx[:, 0].astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-    return out.ravel()
+    return remap_points(values, idx[:, 1], idx[:, 0])
 
 
 AROUND = np.stack([np.cos(np.linspace(0, 2 * np.pi, 24, endpoint=False)),

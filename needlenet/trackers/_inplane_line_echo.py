@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .._sampling import remap_points
 from ..backends import NeedleLine
 from ..features import (
     Frame,
@@ -84,9 +85,7 @@ def image_strip(image: np.ndarray, frame: Frame, start: np.ndarray, d: np.ndarra
     """The image on points start + t d + y up: rows y, columns t."""
     pts = start[None, None] + t[None, :, None] * d[None, None] + y[:, None, None] * up[None, None]
     idx = frame.grid.points_to_index(pts.reshape(-1, 2))
-    out = cv2.remap(image, idx[:, 1].astype(np.float32).reshape(1, -1),
-                    idx[:, 0].astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)
+    out = remap_points(image, idx[:, 1], idx[:, 0], cv2.BORDER_REPLICATE)
     return out.reshape(len(y), len(t)).astype(np.float64)
 
 
