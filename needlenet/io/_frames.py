@@ -135,6 +135,11 @@ def read_image_folder(path: str | os.PathLike) -> FrameStack:
     files = sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
                    key=_natural_key)
     if not files:
+        dicom = _dicom_files(path)
+        if dicom:
+            raise RecordingError(
+                f"{path}: holds DICOM files, not image frames; each DICOM file is a recording "
+                f"(a scanner's cine loop): track one, e.g. {dicom[0]}")
         raise RecordingError(f"{path}: no image files ({', '.join(IMAGE_SUFFIXES)}) in the "
                              "folder")
     sizes = []
@@ -153,6 +158,20 @@ def read_image_folder(path: str | os.PathLike) -> FrameStack:
         return first.copy() if i == 0 else _read_image(files[i], i, first.shape, files[0])
 
     return FrameStack(read, len(files), first.shape, source=files)
+
+
+def _dicom_files(folder: Path, limit: int = 64) -> list[Path]:
+    """DICOM files among the first ``limit`` regular files of ``folder`` (a scanner's export:
+    ``DICOMDIR`` beside ``IM_0001``, or ``.dcm`` files), in natural order."""
+    from ._dicom import is_dicom
+
+    found = []
+    for k, p in enumerate(sorted(folder.iterdir(), key=_natural_key)):
+        if k >= limit:
+            break
+        if p.is_file() and p.name.upper() != "DICOMDIR" and is_dicom(p):
+            found.append(p)
+    return found
 
 
 def _read_image(f: Path, i: int, shape, first: Path) -> np.ndarray:

@@ -262,3 +262,15 @@ def test_a_damaged_attribute_that_is_not_needed_is_dropped_with_a_note(seq, tmp_
             with pytest.raises(RecordingError, match="Columns missing"):
                 load_recording(bad)
 
+
+def test_a_folder_of_dicom_files_names_one_to_track(seq, tmp_path):
+    """A scanner's export folder (DICOMDIR beside IM_0001, IM_0002): each file is a loop."""
+    d = tmp_path / "export"
+    d.mkdir()
+    for name in ("IM_0002", "IM_0001"):
+        write_dicom(d / name, np.asarray(seq.images), pixel_spacing=[0.1, 0.1])
+    (d / "DICOMDIR").write_bytes(b"\0" * 128 + b"DICM")
+    with pytest.raises(RecordingError, match=r"holds DICOM files, not image frames; .* track "
+                       r"one, e\.g\. .*IM_0001"):
+        load_recording(d)
+
