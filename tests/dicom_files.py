@@ -33,10 +33,11 @@ def write_dicom(path, frames: np.ndarray, *, regions=(), pixel_spacing=None,
                 frame_time_ms: float | None = 50.0, frame_time_vector=None,
                 photometric: str | None = None, compression: str = "none",
                 bits_stored: int | None = None, sop_class: str = US_MULTIFRAME,
-                jpeg_quality: int = 95) -> Path:
+                jpeg_quality: int = 95, attributes: dict | None = None) -> Path:
     """``frames`` (T, H, W) gray or (T, H, W, 3) RGB, uint8 (or uint16 for gray) as a DICOM
     file. ``compression``: ``none``, ``jpeg`` (baseline, each frame encoded by OpenCV, colour
-    as YBR_FULL_422) or ``rle`` (pydicom's encoder)."""
+    as YBR_FULL_422) or ``rle`` (pydicom's encoder). ``attributes``: set last (None removes
+    one)."""
     import cv2
     from pydicom.dataset import Dataset, FileMetaDataset
     from pydicom.encaps import encapsulate
@@ -87,6 +88,12 @@ def write_dicom(path, frames: np.ndarray, *, regions=(), pixel_spacing=None,
         ds.PixelData = np.ascontiguousarray(frames).tobytes()
         if compression == "rle":
             ds.compress(RLELossless, np.ascontiguousarray(frames))
+    for key, value in (attributes or {}).items():  # e.g. InstanceNumber, AcquisitionTime
+        if value is None:
+            if key in ds:
+                delattr(ds, key)
+        else:
+            setattr(ds, key, value)
     path = Path(path)
     ds.save_as(path, enforce_file_format=True)
     return path

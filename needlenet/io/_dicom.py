@@ -140,13 +140,44 @@ def read_dicom(path: str | os.PathLike) -> DicomRecording:
 
 
 def _read(path: str | os.PathLike) -> DicomRecording:
+    src = str(path)
+    notes: list[str] = []
+    ds = _header(src, notes)
+    shape, channels, bits = _pixel_format(ds, src)
+    decode = _decoder(ds, src)
+    n = _int(ds, "NumberOfFrames", src, default=1)
+    if n < 1:
+        raise RecordingError(f"{src}: NumberOfFrames (0028,0008) is {n}")
+    check_frame_shape(shape, src, "Rows x Columns")
+    check_allocation((*shape, channels), max(bits // 8, 1), src, "Rows x Columns")
+    _check_frame_count(n, shape, channels, bits, decode.compressed, src)
+    spacing, origin, crop, region_note = _geometry(ds, src, shape)
+    if region_note:
+        notes.append(region_note)
+    meta = dicom_meta(ds, decode, n, spacing, crop)
+    stack = FrameStack(decode.read, n, shape, source=src)
+    stack.frame(0)  # the first frame decodes, or the error names why now
+    return DicomRecording(stack, spacing, origin, crop, _frame_times(ds, n, src), meta, notes)
+
+
+def dicom_meta(ds, decode, n: int, spacing, crop) -> dict:
+    """What the sequence's meta records of a DICOM recording."""
+    return {"format": "dicom",
+            "dicom": {"transfer_syntax": decode.syntax, "photometric": decode.photometric,
+                      "sop_class": str(ds.get("SOPClassUID", "")), "frames": n,
+                      "manufacturer": str(ds.get("Manufacturer", ""))[:64],
+                      "geometry_from": "ultrasound region" if crop is not None else
+                      "PixelSpacing" if spacing is not None else "none"}}
+
+
+def _header(src: str, notes: list[str]):
+    """The file's data set without its pixels, every element converted (see
+    :func:`_readable`); a RecordingError for a file that is not DICOM or holds a volume."""
     import pydicom
     from pydicom.errors import InvalidDicomError
 
-    src = str(path)
-    if not Path(path).is_file():
+    if not Path(src).is_file():
         raise RecordingError(f"{src}: not a regular file")
-    notes: list[str] = []
     try:
         with _ClampedFile(src) as fh:
             ds = pydicom.dcmread(fh, stop_before_pixels=True)
@@ -164,26 +195,7 @@ def _read(path: str | os.PathLike) -> DicomRecording:
         raise RecordingError(f"{src}: an {_VOLUME_SOPS[sop]} (a 3D volume in DICOM frames); "
                              "needlenet reads DICOM 2D frames and cine loops; export the volume "
                              "as NRRD or a PLUS metafile")
-    shape, channels, bits = _pixel_format(ds, src)
-    decode = _decoder(ds, src)
-    n = _int(ds, "NumberOfFrames", src, default=1)
-    if n < 1:
-        raise RecordingError(f"{src}: NumberOfFrames (0028,0008) is {n}")
-    check_frame_shape(shape, src, "Rows x Columns")
-    check_allocation((*shape, channels), max(bits // 8, 1), src, "Rows x Columns")
-    _check_frame_count(n, shape, channels, bits, decode.compressed, src)
-    spacing, origin, crop, region_note = _geometry(ds, src, shape)
-    if region_note:
-        notes.append(region_note)
-    meta = {"format": "dicom",
-            "dicom": {"transfer_syntax": decode.syntax, "photometric": decode.photometric,
-                      "sop_class": sop, "frames": n,
-                      "manufacturer": str(ds.get("Manufacturer", ""))[:64],
-                      "geometry_from": "ultrasound region" if crop is not None else
-                      "PixelSpacing" if spacing is not None else "none"}}
-    stack = FrameStack(decode.read, n, shape, source=src)
-    stack.frame(0)  # the first frame decodes, or the error names why now
-    return DicomRecording(stack, spacing, origin, crop, _frame_times(ds, n, src), meta, notes)
+    return ds
 
 
 def _int(ds, key: str, src: str, default=None):

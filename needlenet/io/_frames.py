@@ -123,6 +123,11 @@ def _gray(img: np.ndarray) -> np.ndarray:
     return img
 
 
+def has_image_files(path: Path) -> bool:
+    """Whether a folder holds a file with an image suffix (a folder of frames)."""
+    return any(p.suffix.lower() in IMAGE_SUFFIXES for p in Path(path).iterdir())
+
+
 def read_image_folder(path: str | os.PathLike) -> FrameStack:
     """Every image file of a folder, in natural order (``f2.png`` before ``f10.png``), as
     uint8 gray frames ``(T, H, W)``; colour is converted to gray (OpenCV's BGR luma), with
@@ -135,13 +140,8 @@ def read_image_folder(path: str | os.PathLike) -> FrameStack:
     files = sorted((p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES),
                    key=_natural_key)
     if not files:
-        dicom = _dicom_files(path)
-        if dicom:
-            raise RecordingError(
-                f"{path}: holds DICOM files, not image frames; each DICOM file is a recording "
-                f"(a scanner's cine loop): track one, e.g. {dicom[0]}")
-        raise RecordingError(f"{path}: no image files ({', '.join(IMAGE_SUFFIXES)}) in the "
-                             "folder")
+        raise RecordingError(f"{path}: no image files ({', '.join(IMAGE_SUFFIXES)}) or DICOM "
+                             "files in the folder")
     sizes = []
     for f in files:
         if not f.is_file():  # a folder, or a FIFO that would never end
@@ -158,20 +158,6 @@ def read_image_folder(path: str | os.PathLike) -> FrameStack:
         return first.copy() if i == 0 else _read_image(files[i], i, first.shape, files[0])
 
     return FrameStack(read, len(files), first.shape, source=files)
-
-
-def _dicom_files(folder: Path, limit: int = 64) -> list[Path]:
-    """DICOM files among the first ``limit`` regular files of ``folder`` (a scanner's export:
-    ``DICOMDIR`` beside ``IM_0001``, or ``.dcm`` files), in natural order."""
-    from ._dicom import is_dicom
-
-    found = []
-    for k, p in enumerate(sorted(folder.iterdir(), key=_natural_key)):
-        if k >= limit:
-            break
-        if p.is_file() and p.name.upper() != "DICOMDIR" and is_dicom(p):
-            found.append(p)
-    return found
 
 
 def _read_image(f: Path, i: int, shape, first: Path) -> np.ndarray:

@@ -28,10 +28,12 @@ from pathlib import Path
 import numpy as np
 
 from ._dicom import DICOM_SUFFIXES, is_dicom, read_dicom
+from ._dicom_series import dicom_files, read_dicom_series
 from ._errors import RecordingError
 from ._frames import (
     VIDEO_SUFFIXES,
     apply_crop,
+    has_image_files,
     read_image_folder,
     read_sidecar,
     read_video,
@@ -55,8 +57,11 @@ __all__ = ["load_recording", "save_plus_sequence", "sequence_to_plus", "needle_t
            "parse_spacing", "parse_crop", "RECORDING_KINDS", "DEFAULT_DYNAMIC_RANGE_DB",
            "NEEDLE_TIP", "NEEDLE_ENTRY", "PROBE_POSE"]
 
-RECORDING_KINDS = ".npz, .mha/.mhd (PLUS), .nrrd/.nhdr, DICOM (.dcm, or no suffix), a folder " \
-    "of images, or a video (" + ", ".join(VIDEO_SUFFIXES) + ")"
+RECORDING_KINDS = ".npz, .mha/.mhd (PLUS), .nrrd/.nhdr, DICOM (.dcm, or no suffix; a folder " \
+    "of single-frame files), a folder of images, or a video (" + ", ".join(VIDEO_SUFFIXES) + ")"
+# the suffixes of the other kinds: a file with none of them is read as DICOM when it carries
+# DICOM's signature (scanners export IM_0001)
+KNOWN_SUFFIXES = (".npz", ".nrrd", ".nhdr", *PLUS_SUFFIXES, *VIDEO_SUFFIXES)
 DEFAULT_DYNAMIC_RANGE_DB = 60.0  # recorded in meta as assumed when the file does not say
 NEEDLE_TIP, NEEDLE_ENTRY, PROBE_POSE = "NeedleTipToReference", "NeedleEntryToReference", \
     "ProbeToReference"
@@ -313,7 +318,23 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
     sidecar: dict = {}
     plus = None
     warnings: list[str] = []
-    if path.is_dir() or suffix in VIDEO_SUFFIXES:
+    dicom = None  # a DICOM recording: one file, or a folder of single frames
+    if path.is_dir() and not has_image_files(path):
+        series = dicom_files(path)
+        dicom = read_dicom_series(path, series) if series else None
+    elif path.is_file() and (suffix in DICOM_SUFFIXES or (
+            suffix not in KNOWN_SUFFIXES and is_dicom(path))):
+        dicom = read_dicom(path)
+    if dicom is not None:
+        images, file_sp, origin, file_ts = dicom.images, dicom.spacing_mm, dicom.origin_mm, \
+            dicom.timestamps_s
+        if crop is None:
+            crop = dicom.crop  # the scanner's image region: its text and scales cut away
+        elif dicom.crop is not None:
+            dicom.meta["dicom"]["region_crop_replaced"] = list(dicom.crop)
+        warnings += dicom.notes
+        meta.update(dicom.meta)
+    elif path.is_dir() or suffix in VIDEO_SUFFIXES:
         sc = sidecar_path(path)
         if sc is not None:
             sidecar = read_sidecar(sc)
@@ -376,16 +397,6 @@ def load_recording(path: str | os.PathLike, *, modality: str | None = None,
             rec.timestamps_s
         warnings += rec.meta.pop("warnings", [])
         meta.update(format="nrrd", **rec.meta)
-    elif suffix in DICOM_SUFFIXES or is_dicom(path):
-        rec = read_dicom(path)
-        images, file_sp, origin, file_ts = rec.images, rec.spacing_mm, rec.origin_mm, \
-            rec.timestamps_s
-        if crop is None:
-            crop = rec.crop  # the scanner's image region: its text and scales cut away
-        elif rec.crop is not None:
-            rec.meta["dicom"]["region_crop_replaced"] = list(rec.crop)
-        warnings += rec.notes
-        meta.update(rec.meta)
     else:
         raise RecordingError(f"{src}: unknown recording type {suffix or '(no suffix)'!r}; "
                              f"expected {RECORDING_KINDS}")

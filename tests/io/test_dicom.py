@@ -263,14 +263,56 @@ def test_a_damaged_attribute_that_is_not_needed_is_dropped_with_a_note(seq, tmp_
                 load_recording(bad)
 
 
-def test_a_folder_of_dicom_files_names_one_to_track(seq, tmp_path):
+def test_a_folder_of_dicom_loops_names_one_to_track(seq, tmp_path):
     """A scanner's export folder (DICOMDIR beside IM_0001, IM_0002): each file is a loop."""
     d = tmp_path / "export"
     d.mkdir()
     for name in ("IM_0002", "IM_0001"):
         write_dicom(d / name, np.asarray(seq.images), pixel_spacing=[0.1, 0.1])
     (d / "DICOMDIR").write_bytes(b"\0" * 128 + b"DICM")
-    with pytest.raises(RecordingError, match=r"holds DICOM files, not image frames; .* track "
-                       r"one, e\.g\. .*IM_0001"):
+    with pytest.raises(RecordingError, match=r"holds 2 DICOM cine loops \(multi-frame files\); "
+                       r"each is a recording: track one, e\.g\. .*IM_0001"):
         load_recording(d)
+
+
+def _series(seq, folder, times=True, over=None):
+    """The sequence's frames as single-frame files, written in reverse name order, numbered
+    by InstanceNumber, stamped with their acquisition times; ``over``: {frame: attributes}."""
+    over = over or {}
+    folder.mkdir()
+    im = np.asarray(seq.images)
+    for i in range(len(im)):
+        t = 10 * 3600 + 7 * 60 + 3.25 + float(seq.timestamps_s[i])
+        hh, rest = divmod(t, 3600)
+        mm, ss = divmod(rest, 60)
+        attrs = {"InstanceNumber": i + 1, "SeriesInstanceUID": "1.2.3.4",
+                 "AcquisitionTime": f"{int(hh):02d}{int(mm):02d}{ss:09.6f}" if times else None}
+        attrs.update(over.get(i, {}))
+        whole = region(0, 0, im.shape[2] - 1, im.shape[1] - 1, *seq.spacing_mm)
+        write_dicom(folder / f"IM_{len(im) - i:04d}", im[i:i + 1], regions=[whole],
+                    frame_time_ms=None, attributes=attrs)
+    (folder / "DICOMDIR").write_bytes(b"\0" * 128 + b"DICM")
+
+
+def test_a_folder_of_single_frames_is_one_recording_in_instance_order(seq, tmp_path):
+    _series(seq, tmp_path / "clip")
+    rec = load_recording(tmp_path / "clip")
+    np.testing.assert_array_equal(np.asarray(rec.images), seq.images)
+    np.testing.assert_allclose(rec.timestamps_s, seq.timestamps_s, atol=1e-6)
+    np.testing.assert_allclose(rec.spacing_mm, seq.spacing_mm)
+    assert rec.meta["dicom"]["files"] == 5
+
+
+def test_a_series_without_times_asks_for_fps_and_bad_series_are_named(seq, tmp_path):
+    _series(seq, tmp_path / "a", times=False)
+    with pytest.raises(RecordingError, match=r"no frame times .*--fps"):
+        load_recording(tmp_path / "a")
+    assert load_recording(tmp_path / "a", fps=20).n_frames == 5
+    _series(seq, tmp_path / "b", over={3: {"SeriesInstanceUID": "9.9"}})
+    with pytest.raises(RecordingError, match="frames of 2 series"):
+        load_recording(tmp_path / "b")
+    _series(seq, tmp_path / "c", over={2: {"Rows": 400}})
+    with pytest.raises(RecordingError, match=r"IM_0003: 384x400 pixels .* but IM_0005 has "
+                       "384x500"):
+        load_recording(tmp_path / "c")
 

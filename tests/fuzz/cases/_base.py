@@ -97,6 +97,7 @@ INPUTS: dict[str, tuple[tuple[str, ...], str, tuple[str, ...]]] = {
     "IM_0001": (("IM_0001",), "inplane", ()),
     "ic.dcm": (("ic.dcm",), "inplane", ()),
     "ir.dcm": (("ir.dcm",), "inplane", ()),
+    "series": (tuple(f"series/IM_{k:04d}" for k in range(1, 6)), "inplane", ()),
 }
 PLUS_INPUTS = ("i.seq.mha", "iu.seq.mha", "a.seq.mha", "v.seq.mha", "vu.seq.mha", "if.seq.mha",
                "i.mhd", "iz.mhd")

@@ -12,7 +12,8 @@ import numpy as np
 
 from ._base import Base, _case, _track, mutate_bytes, pick
 
-DICOM_INPUTS = ("i.dcm", "ic.dcm", "ir.dcm", "IM_0001")
+DICOM_INPUTS = ("i.dcm", "ic.dcm", "ir.dcm", "IM_0001", "series")
+SERIES = tuple(f"series/IM_{k:04d}" for k in range(1, 6))
 
 _VALUES = (0, -1, 1, 3, 7, 255, 65535, 2 ** 31 - 1, 1e-12, 1e12, float("nan"),
            float("inf"), -0.5, "x", "", "1\\2\\3")
@@ -47,6 +48,12 @@ def dicom_inputs(seq, root) -> dict[str, bytes]:
                               regions=reg, compression="jpeg").read_bytes()
     f["ir.dcm"] = write_dicom(root / "ir.dcm", im, pixel_spacing=list(seq.spacing_mm),
                               compression="rle").read_bytes()
+    (root / "series").mkdir(exist_ok=True)
+    for k, name in enumerate(SERIES):  # one clip as single-frame files, an export folder's
+        f[name] = write_dicom(root / name, im[k:k + 1], pixel_spacing=list(seq.spacing_mm),
+                              frame_time_ms=None, attributes={
+                                  "InstanceNumber": k + 1, "SeriesInstanceUID": "1.2.3",
+                                  "AcquisitionTime": f"1000{k * 0.05:09.6f}"}).read_bytes()
     return f
 
 
@@ -123,13 +130,14 @@ def _with_syntax(data: bytes, uid: str) -> bytes:
 def fam_dicom(rng, base: Base) -> dict:
     inp = pick(rng, DICOM_INPUTS)
     files = base.input_files(inp)
-    data = files[inp]
+    target = pick(rng, SERIES) if inp == "series" else inp
+    data = files[target]
     if rng.random() < 0.6:
-        files[inp], what = _edit(data, rng)
+        files[target], what = _edit(data, rng)
     else:
         j = data.find(b"\xe0\x7f\x10\x00")  # the Pixel Data tag: header before, pixels after
         lo, hi, where = (0, j, "header") if j > 0 and rng.random() < 0.5 else \
             (max(j, 0), len(data), "pixel data")
-        files[inp], what = mutate_bytes(data, rng, lo, hi)
+        files[target], what = mutate_bytes(data, rng, lo, hi)
         what = f"{what} ({where})"
-    return _case("dicom", f"{inp}: {what}", _track(inp, rng), files)
+    return _case("dicom", f"{target}: {what}", _track(inp, rng), files)
