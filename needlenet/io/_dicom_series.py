@@ -30,16 +30,13 @@ from ._dicom import (
     is_dicom,
 )
 from ._errors import RecordingError
+from ._frames import _natural_key
 from ._lazy import FrameStack
 from ._limits import check_allocation, check_frame_shape
 
 __all__ = ["dicom_files", "read_dicom_series"]
 
 MAX_FILES = 100_000  # frames of one clip: an hour at 25 frames/s and more
-
-
-def _natural_key(p: Path):
-    return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", p.name)]
 
 
 def dicom_files(folder: Path) -> list[Path]:
