@@ -33,7 +33,7 @@ import numpy as np
 import synth
 
 from ..eval._coverage import region_coverage, reported_tips
-from ..io import load_recording
+from ..io import RecordingError, load_recording
 
 __all__ = ["data_dir", "external_sequences", "frame_classes", "markdown", "run",
            "sequence_metrics", "pooled_metrics"]
@@ -46,18 +46,46 @@ def data_dir() -> Path:
     return Path(str(resources.files("needlenet").joinpath("data", "external")))
 
 
+LABELLED_SUFFIXES = (".npz", ".mha", ".mhd")  # sequence files, PLUS sequence metafiles
+
+
+def labelled_files(directory: str | Path) -> list[Path]:
+    """The labelled recordings of a set: needlenet's sequence files and PLUS sequence
+    metafiles (whose ``NeedleTipToReference`` transforms are the labels), sorted by name."""
+    d = Path(directory)
+    return sorted(f for f in d.iterdir() if f.suffix.lower() in LABELLED_SUFFIXES and
+                  f.is_file())
+
+
 def external_sequences(directory: str | Path | None = None,
                        names: tuple[str, ...] | None = None) -> list[tuple[str, synth.Sequence]]:
-    """(name, sequence) of every ``.npz`` in ``directory`` (default: the committed set), sorted
-    by name; ``names`` keeps those only."""
+    """(name, sequence) of every labelled recording in ``directory`` (default: the committed
+    set; :func:`labelled_files`), sorted by name; ``names`` keeps those only. A PLUS file
+    without needle labels is refused: its frames would count as needle-free."""
     d = Path(directory) if directory is not None else data_dir()
-    files = sorted(d.glob("*.npz"))
+    files = labelled_files(d)
     if not files:
-        raise FileNotFoundError(f"no sequence files (*.npz) in {d}")
+        raise FileNotFoundError(f"no labelled recordings ({', '.join(LABELLED_SUFFIXES)}) in {d}")
     if names is not None:
-        files = [f for f in files if f.stem in names]
-    # read as ``needlenet track`` reads a recording (marks drawn over a live one filled in)
-    return [(f.stem, load_recording(f)) for f in files]
+        files = [f for f in files if _name(f) in names]
+    out = []
+    for f in files:
+        # read as ``needlenet track`` reads a recording (marks drawn over a live one filled in)
+        seq = load_recording(f)
+        if f.suffix.lower() != ".npz" and seq.tip_mm is None:
+            raise RecordingError(
+                f"{f}: no NeedleTipToReference transforms, so no needle labels to measure "
+                "against (a needle-free recording: save it as a sequence file with meta needle "
+                "false)")
+        out.append((_name(f), seq))
+    return out
+
+
+def _name(f: Path) -> str:
+    """A recording's name in the tables: its file name without ``.npz``, ``.seq.mha`` or
+    ``.mha``."""
+    name = f.name[:-len(f.suffix)]
+    return name[:-4] if name.lower().endswith(".seq") else name
 
 
 def frame_classes(seq: synth.Sequence) -> tuple[np.ndarray, np.ndarray]:
@@ -167,10 +195,10 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
         features: tuple[str, ...] = ("classical", "learned")) -> dict:
     """Track every sequence of the set with classical and learned features; one row per
     sequence and features, then one pooled row per features. ``directory``: another set of
-    labelled sequence files (every ``.npz`` in it, all of them even with ``quick``), all
-    in-plane, all axial or all volume; ``model``: the learned features' ONNX model (default:
-    the shipped one of the set's modality); ``features``: the kinds to run (learned ones only
-    where a model is installed)."""
+    labelled recordings (every ``.npz`` sequence file and PLUS ``.mha``/``.mhd`` in it, all
+    of them even with ``quick``), all in-plane, all axial or all volume; ``model``: the
+    learned features' ONNX model (default: the shipped one of the set's modality);
+    ``features``: the kinds to run (learned ones only where a model is installed)."""
     from ._trackers import _feature_kinds, _tier
 
     tier = _tier(quick, tier)
@@ -181,9 +209,9 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
     modality = first if first in ("axial", "volume") else "inplane"
     for name, seq in seqs:
         if seq.modality != modality:
-            raise ValueError(f"bench external: {name}.npz holds a {seq.modality!r} sequence; "
+            raise ValueError(f"bench external: {name} holds a {seq.modality!r} sequence; "
                              f"the suite tracks a set of {modality} sequences (the set's "
-                             f"first file is {seqs[0][0]}.npz)")
+                             f"first recording is {seqs[0][0]})")
     model = None if model is None else str(model)
     kinds = [k for k in _feature_kinds(modality, log) if k in features]
     if modality in ("axial", "volume"):

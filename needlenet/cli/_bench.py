@@ -24,9 +24,11 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=seed, default=0)
     p.add_argument("--data", metavar="DIR",
                    help="external suite: a directory of labelled in-plane (or axial, or volume) "
-                        "sequence files (.npz, needlenet's sequence format) to run instead of "
-                        "the shipped in-plane PyMUST set, e.g. your own labelled recordings or "
-                        "the shipped axial set needlenet/data/external_axial or volume set "
+                        "recordings to run instead of the shipped in-plane PyMUST set: "
+                        "sequence files (.npz, needlenet's format) or PLUS sequences (.mha, "
+                        ".mhd) whose NeedleTipToReference transforms are the labels, e.g. your "
+                        "own tracked-needle recordings, or the shipped axial set "
+                        "needlenet/data/external_axial or volume set "
                         "needlenet/data/external_volume")
     p.add_argument("--model", metavar="F.onnx",
                    help="external suite: the in-plane (axial or volume, for such a set) model for "
@@ -38,6 +40,7 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from ..bench import SUITES, BenchInterrupted, check_report_dir, run_suite
+    from ..io import RecordingError
 
     if args.suite not in SUITES:
         raise CLIError(f"bench: unknown suite {args.suite!r}; available: {', '.join(SUITES)}")
@@ -56,11 +59,15 @@ def run(args) -> int:
 
         modality = "inplane"
         if args.data is not None:
-            first = sorted(Path(args.data).glob("*.npz"))[:1]
-            if first:
-                from synth import load_sequence
+            from ..bench._external import labelled_files
+            from ..io import load_recording
 
-                modality = load_sequence(first[0]).modality  # inplane, axial or volume
+            first = labelled_files(args.data)[:1]
+            if first:
+                try:
+                    modality = load_recording(first[0]).modality  # inplane, axial or volume
+                except RecordingError as exc:
+                    raise CLIError(f"bench external: {exc}") from None
         try:  # the checks every model passes before it tracks anything
             learned_features(modality, args.model)
         except ValueError as exc:  # ModelError included
@@ -70,6 +77,8 @@ def run(args) -> int:
                            report_dir=args.report, overwrite=args.overwrite, data=args.data,
                            model=args.model)
     except FileNotFoundError as exc:
+        raise CLIError(f"bench {args.suite}: {exc}") from None
+    except RecordingError as exc:  # a recording of --data that cannot be read or measured
         raise CLIError(f"bench {args.suite}: {exc}") from None
     except BenchInterrupted as exc:
         print(f"needlenet: {exc}", file=sys.stderr)

@@ -212,6 +212,37 @@ def test_a_users_set_and_model_run_through_the_cli(tmp_path, capsys):
     capsys.readouterr()
 
 
+def test_labelled_plus_recordings_are_a_set_too(tmp_path, capsys):
+    """A PLUS sequence whose NeedleTipToReference transforms are the labels (a tracked
+    needle's recording) is measured as the same sequence file is; one without them is a
+    clean error (its frames would count as needle-free)."""
+    import json
+
+    from needlenet.cli import main
+    from needlenet.io import save_plus_sequence
+
+    seq = synth.generate("inplane", seed=4, frames=4, width_mm=20, depth_mm=25)
+    (tmp_path / "npz").mkdir()
+    (tmp_path / "plus").mkdir()
+    synth.save_sequence(seq, tmp_path / "npz" / "mine.npz")
+    save_plus_sequence(seq, tmp_path / "plus" / "mine.seq.mha")
+    rows = {}
+    for kind in ("npz", "plus"):
+        out = tmp_path / f"{kind}.json"
+        assert main(["bench", "external", "--data", str(tmp_path / kind), "--json",
+                     str(out)]) == 0
+        rows[kind] = [r for r in json.loads(out.read_text())["rows"] if r["sequence"] == "mine"]
+    keys = ("features", "tip_error_median_mm", "tracked_fraction", "needle_frames")
+    assert [[r[k] for k in keys] for r in rows["plus"]] == \
+        [[r[k] for k in keys] for r in rows["npz"]]
+    bare = synth.Sequence(**{**seq.as_dict(), "tip_mm": None, "visible": None,
+                             "direction": None, "entry_mm": None, "centerline_mm": None})
+    save_plus_sequence(bare, tmp_path / "plus" / "unlabelled.seq.mha")
+    capsys.readouterr()
+    assert main(["bench", "external", "--data", str(tmp_path / "plus")]) == 2
+    assert "unlabelled.seq.mha: no NeedleTipToReference transforms" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("argv,message", [
     (["bench", "latency", "--data", "."], "--data and --model belong to the external suite"),
     (["bench", "external", "--data", "/nonexistent-dir"], "not a directory"),
@@ -229,5 +260,5 @@ def test_a_set_of_mixed_modalities_is_refused(tmp_path):
     synth.save_sequence(seq, tmp_path / "ax.npz")
     inplane = synth.generate("inplane", seed=4, frames=2, width_mm=20, depth_mm=25)
     synth.save_sequence(inplane, tmp_path / "a_in.npz")
-    with pytest.raises(ValueError, match="ax.npz holds a 'axial' sequence"):
+    with pytest.raises(ValueError, match="ax holds a 'axial' sequence"):
         ext.run(tier="quick", log=lambda m: None, directory=tmp_path)
