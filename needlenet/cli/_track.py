@@ -322,7 +322,10 @@ def _report(args, seq, estimates, out_json, overlay, out_plus, model_grid=None) 
     from ..eval import evaluate
 
     metrics = evaluate(args.tracker, estimates, seq)["summary"] if seq.has_labels else None
-    write_summary(args, estimates, out_json, metrics, model_grid)
+    geometry = {"spacing_mm": [round(float(v), 6) for v in seq.spacing_mm]}
+    if isinstance(seq.meta, dict) and seq.meta.get("crop") is not None:
+        geometry["crop"] = seq.meta["crop"]  # the image area read (given, or the file's)
+    write_summary(args, estimates, out_json, metrics, {**geometry, **(model_grid or {})})
     if overlay is not None:
         from ..io import write_overlay
 
@@ -338,15 +341,16 @@ def _report(args, seq, estimates, out_json, overlay, out_plus, model_grid=None) 
         print(f"wrote {out_plus}")
 
 
-def write_summary(args, estimates, out_json, metrics=None, model_grid=None) -> None:
-    """The summary on stdout (the paper's ``metrics`` of a labelled recording, else the
-    latency), and the ``--json`` file with every frame's estimate."""
+def write_summary(args, estimates, out_json, metrics=None, about=None) -> None:
+    """The summary on stdout (``about`` the recording and the model: its spacing, the grid
+    the model ran on; the paper's ``metrics`` of a labelled recording, else the latency),
+    and the ``--json`` file with every frame's estimate."""
     import json
 
     from ..eval import latency_summary
 
     summary = {"file": str(args.file), "tracker": args.tracker, "method": args.method,
-               "features": args.features, "frames": len(estimates), **(model_grid or {})}
+               "features": args.features, "frames": len(estimates), **(about or {})}
     summary.update(metrics if metrics is not None else latency_summary(estimates))
     statuses = [e.status.value for e in estimates]
     summary["status_counts"] = {s: statuses.count(s) for s in sorted(set(statuses))}

@@ -86,5 +86,7 @@ def run_live(args, out_json, overlay, out_plus) -> int:
     if not args.quiet:
         print(f"OpenIGTLink: tracked {len(estimates)} frames (the stream paused for "
               f"{args.igtl_idle:g} s)", file=sys.stderr)
-    write_summary(args, estimates, out_json, None, _model_grid(tracker))
+    write_summary(args, estimates, out_json, None,
+                  {"spacing_mm": [round(float(v), 6) for v in geometry[1]],
+                   **_model_grid(tracker)})
     return 0

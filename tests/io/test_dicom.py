@@ -235,8 +235,12 @@ def test_a_dicom_file_without_suffix_tracks_from_the_command_line(seq, tmp_path,
                     regions=[_region_of(seq)])
     out = tmp_path / "tips.json"
     assert main(["track", str(p), "--json", str(out)]) == 0
-    frames = json.loads(out.read_text())["frames"]
+    result = json.loads(out.read_text())
+    frames = result["frames"]
     assert len(frames) == 5
+    # the summary says what geometry the file gave: a user can check it against the scanner
+    assert result["summary"]["spacing_mm"] == [float(v) for v in seq.spacing_mm]
+    assert result["summary"]["crop"] == [MARGIN_X, MARGIN_Y, *seq.images.shape[:0:-1]]
     tips = [f["tip_mm"] for f in frames if f["status"] == "tracking"]
     assert tips
     truth = np.asarray(seq.tip_mm)[[f["status"] == "tracking" for f in frames]]
