@@ -120,7 +120,8 @@ class MathiassenParams:
             if name.endswith("_mm") and v > _MAX_MM:
                 raise ValueError(f"MathiassenParams.{name} must be at most {_MAX_MM:g} mm, "
                                  f"got {v}")
-        for name in ("sq_shift_mm", "bevel_shift_mm"):
+        for name in ("sq_shift_mm", "bevel_shift_mm", "roi_corner_left_mm",
+                     "roi_corner_down_mm"):
             v = getattr(self, name)
             if not 0.0 <= v <= _MAX_MM:
                 raise ValueError(f"MathiassenParams.{name} must lie in 0-{_MAX_MM:g} mm, "

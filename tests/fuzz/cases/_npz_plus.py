@@ -107,7 +107,7 @@ def fam_npz_arrays(rng, base: Base) -> dict:
         elif choice == "drop" and a.ndim:
             arrays[key] = a[0]
         elif choice == "empty":
-            arrays[key] = a[:0]
+            arrays[key] = a[:0] if a.ndim else np.zeros(0, a.dtype)
         elif choice == "transpose" and a.ndim >= 2:
             arrays[key] = np.ascontiguousarray(np.swapaxes(a, 0, -1))
         elif choice == "one":
