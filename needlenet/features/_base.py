@@ -43,11 +43,13 @@ class Frame:
 
     @classmethod
     def from_image(cls, image, spacing_mm, *, t: float = 0.0, index: int = 0,
-                   origin_mm=None, insertion_speed_mm_s: float | None = None) -> Frame:
+                   origin_mm=None, insertion_speed_mm_s: float | None = None,
+                   probe_pose=None) -> Frame:
         """A frame of your own: ``image`` (H, W) for a 2D frame or (D, H, W) for a volume,
         in array order (depth first); ``spacing_mm`` one number (square pixels) or one per
         axis, depth first; ``origin_mm`` the position of pixel 0 (default 0), depth first;
-        ``t`` its time (s). A ValueError names what does not fit."""
+        ``t`` its time (s); ``probe_pose`` the probe-to-world transform (4 x 4) when a
+        tracker follows the probe. A ValueError names what does not fit."""
         im = np.asarray(image)
         if im.ndim not in (2, 3):
             raise ValueError(f"Frame.from_image: image must be 2D (H, W) or 3D (D, H, W), got "
@@ -66,8 +68,12 @@ class Frame:
                              f"(depth first), got {np.asarray(origin_mm).tolist()}")
         if not np.isfinite(t):
             raise ValueError(f"Frame.from_image: t must be a finite time in seconds, got {t}")
+        pose = None if probe_pose is None else np.asarray(probe_pose, float)
+        if pose is not None and (pose.shape != (4, 4) or not np.all(np.isfinite(pose))):
+            raise ValueError("Frame.from_image: probe_pose must be a 4 x 4 matrix of finite "
+                             f"numbers, got shape {pose.shape}")
         grid = Grid(im.shape, tuple(float(v) for v in sp), tuple(float(v) for v in org))
-        return cls(im, grid, float(t), int(index), insertion_speed_mm_s)
+        return cls(im, grid, float(t), int(index), insertion_speed_mm_s, pose)
 
 
 @dataclass

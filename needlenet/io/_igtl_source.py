@@ -148,6 +148,5 @@ def frame_from_image_message(msg, index: int, device: str = DEFAULT_IMAGE_DEVICE
     pose[:3, 3] = m[:3, 3]
     t = float(getattr(msg, "timestamp", 0.0) or 0.0)
     spacing = tuple(float(f"{v:.7g}") for v in (dj, di))  # the wire's float32, no further
-    frame = Frame.from_image(np.ascontiguousarray(im), spacing, t=t, index=index)
-    frame.probe_pose = pose
-    return frame
+    return Frame.from_image(np.ascontiguousarray(im), spacing, t=t, index=index,
+                            probe_pose=pose)

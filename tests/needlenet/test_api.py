@@ -53,6 +53,7 @@ def test_frames_from_arrays_track_as_the_sequence_does():
     (np.zeros((40, 50)), float("nan"), {}, "spacing_mm"),
     (np.zeros((40, 50)), 0.1, {"origin_mm": (0.0,)}, "origin_mm must be 2 finite numbers"),
     (np.zeros((40, 50)), 0.1, {"t": float("inf")}, "t must be a finite time"),
+    (np.zeros((40, 50)), 0.1, {"probe_pose": np.eye(3)}, "probe_pose must be a 4 x 4"),
 ])
 def test_frame_from_image_names_what_does_not_fit(image, spacing, kw, msg):
     with pytest.raises(ValueError, match=msg):
