@@ -320,3 +320,23 @@ def test_a_series_without_times_asks_for_fps_and_bad_series_are_named(seq, tmp_p
                        "384x500"):
         load_recording(tmp_path / "c")
 
+
+@pytest.mark.parametrize("colour", [True, False])
+def test_jpeg_frames_decoded_by_opencv_are_pydicoms(seq, tmp_path, colour):
+    """JPEG baseline frames (YBR_FULL_422 colour, or gray) go through OpenCV's libjpeg:
+    the pixels pydicom's own decode (Pillow, then its YBR conversion) gives."""
+    import pydicom
+    from pydicom.pixels import pixel_array
+
+    from needlenet.io._dicom import _libjpeg_frame
+
+    im = np.asarray(seq.images)[:3]
+    frames = np.repeat(im[..., None], 3, axis=-1) if colour else im
+    if colour:
+        frames = frames.copy()
+        frames[:, 100:110, 50:90] = (30, 200, 60)
+    p = write_dicom(tmp_path / "j.dcm", frames, pixel_spacing=[0.1, 0.1], compression="jpeg")
+    ds = pydicom.dcmread(p)
+    for i in range(3):
+        np.testing.assert_array_equal(_libjpeg_frame(ds, i), pixel_array(ds, index=i))
+
