@@ -12,11 +12,11 @@ it on the screen:
   file has one; otherwise no spacing, and the caller asks for ``--spacing``;
 - **frame times** from ``Frame Time Vector`` (0018,1065) or ``Frame Time`` (0018,1063), in
   ms, else ``Cine Rate`` or ``Recommended Display Frame Rate`` (frames/s);
-- **pixels**, decoded a frame at a time by pydicom as the tracker reads them (uncompressed,
-  RLE, JPEG baseline and extended, JPEG 2000: Pillow's decoders), as uint8 gray: colour (RGB,
-  the YBR of a JPEG-compressed loop, or a palette image through its colour tables) as luma
-  with the scanner's coloured marks filled in (as for videos), ``MONOCHROME1`` inverted, more
-  than 8 bits scaled from their stored range.
+- **pixels**, decoded a frame at a time as the tracker reads them (uncompressed and RLE by
+  pydicom, JPEG baseline by OpenCV's libjpeg, JPEG extended and JPEG 2000 by Pillow), as
+  uint8 gray: colour (RGB, the YBR of a JPEG-compressed loop, or a palette image through its
+  colour tables) as luma with the scanner's coloured marks filled in (as for videos),
+  ``MONOCHROME1`` inverted, more than 8 bits scaled from their stored range.
 
 Transfer syntaxes Pillow cannot decode (JPEG lossless, JPEG-LS) are refused with the syntax
 named and a way to convert the file; so are 3D volumes stored as one multi-frame DICOM.
