@@ -324,7 +324,8 @@ def test_a_series_without_times_asks_for_fps_and_bad_series_are_named(seq, tmp_p
 @pytest.mark.parametrize("colour", [True, False])
 def test_jpeg_frames_decoded_by_opencv_are_pydicoms(seq, tmp_path, colour):
     """JPEG baseline frames (YBR_FULL_422 colour, or gray) go through OpenCV's libjpeg:
-    the pixels pydicom's own decode (Pillow, then its YBR conversion) gives."""
+    the pixels pydicom's own decode (Pillow, then its YBR conversion) gives (the same bits
+    with OpenCV 5.0 and Pillow 13; a grey level of rounding allowed between other builds)."""
     import pydicom
     from pydicom.pixels import pixel_array
 
@@ -338,5 +339,7 @@ def test_jpeg_frames_decoded_by_opencv_are_pydicoms(seq, tmp_path, colour):
     p = write_dicom(tmp_path / "j.dcm", frames, pixel_spacing=[0.1, 0.1], compression="jpeg")
     ds = pydicom.dcmread(p)
     for i in range(3):
-        np.testing.assert_array_equal(_libjpeg_frame(ds, i), pixel_array(ds, index=i))
+        a = _libjpeg_frame(ds, i).astype(int)
+        b = pixel_array(ds, index=i).astype(int)
+        assert a.shape == b.shape and np.abs(a - b).max() <= 1
 
