@@ -12,7 +12,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser("track", help="track the needle in a sequence file or a recording",
                        description="Run a tracker on a sequence file or a recording of your own "
                                    "(DICOM, PLUS .mha/.mhd, NRRD, a folder of image frames, a "
-                                   "video); "
+                                   "video) or a live OpenIGTLink image stream; "
                                    "with labels, report the paper's metrics. Results can be "
                                    "written as a PLUS sequence for 3D Slicer and streamed live "
                                    "over OpenIGTLink.")
