@@ -244,14 +244,21 @@ class _Decoder:
     each frame would cost more than decoding it)."""
 
     src: str
-    syntax: str
+    uid: str  # the transfer syntax
     photometric: str
     bits_stored: int
     signed: bool
     compressed: bool
     header: object = None  # the data set without its pixels (a palette's lookup tables)
-    uid: str = ""  # the transfer syntax
     _held: object = None
+
+    @property
+    def syntax(self) -> str:
+        """The transfer syntax's name (its UID where pydicom does not know it)."""
+        from pydicom.uid import UID
+
+        name = UID(self.uid).name
+        return name or self.uid
 
     def read(self, i: int) -> np.ndarray:
         try:
@@ -348,10 +355,9 @@ def _decoder(ds, src: str) -> _Decoder:
     compressed = bool(getattr(syntax, "is_compressed", False))
     if compressed:
         check_allocation((os.path.getsize(src),), 1, src, "its compressed pixel data")
-    return _Decoder(src, str(getattr(syntax, "name", syntax)),
-                    str(ds.get("PhotometricInterpretation", "")), bits_stored,
-                    _int(ds, "PixelRepresentation", src, default=0) == 1, compressed, ds,
-                    str(syntax))
+    return _Decoder(src, str(syntax), str(ds.get("PhotometricInterpretation", "")),
+                    bits_stored, _int(ds, "PixelRepresentation", src, default=0) == 1,
+                    compressed, ds)
 
 
 def _geometry(ds, src: str, shape: tuple[int, int]):
