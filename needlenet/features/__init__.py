@@ -20,11 +20,19 @@ from ._mathiassen import (
     tip_map_along_axis,
     weights_path,
 )
-from ._resample import NORMALIZATIONS, frame_statistics, image_statistics, normalize, to_model_grid
+from ._resample import (
+    NORMALIZATIONS,
+    frame_image_statistics,
+    frame_statistics,
+    image_statistics,
+    normalize,
+    to_model_grid,
+)
 from ._variance import VarianceFeatures
 
 __all__ = ["axis_vectors", "AxisEstimate", "check_frame", "DFParams", "ding_fenster",
-           "estimate_axis", "FeatureSource", "Frame", "frame_statistics", "FrameError",
+           "estimate_axis", "FeatureSource", "Frame", "frame_image_statistics", "frame_statistics",
+           "FrameError",
            "FrangiFeatures", "FrangiParams", "image_statistics", "IntensityFeatures",
            "learned_features", "LearnedFeatures", "Likelihood", "line_contrast",
            "load_tip_weights", "MathiassenParams", "ModelError", "NORMALIZATIONS", "normalize",

@@ -23,6 +23,7 @@ from ._base import FeatureSource, Frame, FrameError, Likelihood
 from ._resample import (
     NORMALIZATIONS,
     apply_weights,
+    frame_image_statistics,
     frame_statistics,
     model_grid,
     model_shape,
@@ -402,7 +403,8 @@ class LearnedFeatures(FeatureSource):
         if im.ndim != 2:
             return self.likelihood(frame), frame.grid
         self.match_speckle(im, frame.grid.spacing_mm)
-        maps = self._model_grid_maps(im, frame.grid.spacing_mm)
+        level = frame_image_statistics(frame) if self.normalization["mode"] == "robust" else None
+        maps = self._model_grid_maps(im, frame.grid.spacing_mm, level)
         return (Likelihood(shaft=maps[0], tip=maps[1], source=self.name),
                 model_grid(frame.grid, maps.shape[1:]))
 

@@ -10,7 +10,8 @@ import numpy as np
 from synth import Grid
 
 __all__ = ["model_shape", "model_grid", "to_model_grid", "to_frame_grid", "pad_to_multiple",
-           "image_level", "image_statistics", "frame_statistics", "normalize", "NORMALIZATIONS",
+           "image_level", "image_statistics", "frame_image_statistics", "frame_statistics",
+           "normalize", "NORMALIZATIONS",
            "axis_weights", "resize_weights", "apply_weights"]
 
 # Intensity normalisations a model can be trained with (stored in its ONNX metadata):
@@ -246,6 +247,15 @@ def image_statistics(image: np.ndarray, max_samples: int = 65536) -> tuple[float
         nz = nz.astype(np.float64)
         spread = float(nz.std())
     return med, (spread if spread > 0 else 1.0)
+
+
+def frame_image_statistics(frame) -> tuple[float, float]:
+    """:func:`image_statistics` of a :class:`~needlenet.features.Frame`'s image, read once per
+    frame (kept in ``frame.extras``): the robust normalisation of the learned features and the
+    trackers' speckle spread read the same two numbers."""
+    if "image_statistics" not in frame.extras:
+        frame.extras["image_statistics"] = image_statistics(np.asarray(frame.image))
+    return frame.extras["image_statistics"]
 
 
 def frame_statistics(image: np.ndarray, norm: dict):

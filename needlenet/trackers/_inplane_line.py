@@ -304,14 +304,17 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
                             f"{100 * p.echo.coverage:.0f}%, and of its entry half)")
             elif self._continues_axis(seg):
                 return ""  # the needle tracked on the frame before goes on (see _continues_axis)
-            more, far = self._echo_beyond(frame, inner, seg if entry_first else seg.reversed())
-            if more > 0 and far - more <= p.edge_margin_mm + p.echo.section_mm:
-                return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's echo "
-                        "goes on past its end to the edge of the view")
+            oriented = seg if entry_first else seg.reversed()
+            # the room past the end first: it needs no read of the image
+            far = self._room_beyond(frame, inner, oriented)
             if far < p.edge_margin_mm + p.tip_room_sections * p.echo.section_mm and \
                     not self._continues_axis(seg):
                 return (f"no needle tip in view: the {seg.length_mm:.0f} mm line ends "
                         f"{far:.1f} mm from the edge of the view, too near to see its echo end")
+            more, far = self._echo_beyond(frame, inner, oriented)
+            if more > 0 and far - more <= p.edge_margin_mm + p.echo.section_mm:
+                return (f"no needle tip in view: the {seg.length_mm:.0f} mm line's echo "
+                        "goes on past its end to the edge of the view")
             return ""
 
         def check(seg: NeedleLine) -> str:

@@ -38,7 +38,7 @@ from ..backends import NeedleLine
 from ..features import (
     Frame,
     TipFeatures,  # Mathiassen's echo test, shared
-    image_statistics,
+    frame_image_statistics,
 )
 from ._inplane_evidence import echo_sections, echo_shown, section_means
 
@@ -112,9 +112,7 @@ def _row_medians(image: np.ndarray) -> np.ndarray:
 def frame_spread(frame: Frame) -> float:
     """The frame's speckle spread: 1.4826 times the median absolute deviation of its imaged
     pixels (as for :func:`~needlenet.features.line_contrast`). Read once per frame."""
-    if "speckle_spread" not in frame.extras:
-        frame.extras["speckle_spread"] = image_statistics(np.asarray(frame.image))[1]
-    return frame.extras["speckle_spread"]
+    return frame_image_statistics(frame)[1]
 
 
 def tissue_level(frame: Frame, window_mm: float) -> tuple[np.ndarray, float]:

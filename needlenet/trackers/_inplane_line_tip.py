@@ -78,9 +78,17 @@ class LineTip:
         the validity test and the tip both ask (the memo is emptied with each frame)."""
         key = (*seg.start_mm, *seg.end_mm)
         if key not in self._beyond:
-            far = distance_to_edge(inner, frame, seg.end_mm, seg.direction,
-                                   max_mm=MAX_DISTANCE_MM)
+            far = self._room_beyond(frame, inner, seg)
             self._beyond[key] = (echo_beyond(frame, seg, True, far, self.params.echo), far)
+        return self._beyond[key]
+
+    def _room_beyond(self, frame: Frame, inner: np.ndarray, seg: NeedleLine) -> float:
+        """How far (mm) the edge of the view lies past the end of ``seg`` (oriented entry to
+        tip), read once per segment and frame (the memo is emptied with each frame)."""
+        key = ("room", *seg.start_mm, *seg.end_mm)
+        if key not in self._beyond:
+            self._beyond[key] = distance_to_edge(inner, frame, seg.end_mm, seg.direction,
+                                                 max_mm=MAX_DISTANCE_MM)
         return self._beyond[key]
 
     def _reach_mm(self, seg: NeedleLine, wm: WorkingMap, frame: Frame,

@@ -27,3 +27,18 @@ def test_a_grey_frame_and_its_float_copy_give_the_same_statistics():
     med, spread = image_statistics(frame)
     assert med == np.median(inside)
     assert spread == pytest.approx(1.4826 * np.median(np.abs(inside - med)))
+
+
+def test_a_frames_statistics_are_read_once_and_shared_by_the_learned_maps():
+    from needlenet.features import Frame, frame_image_statistics, learned_features
+
+    rng = np.random.default_rng(5)
+    image = rng.integers(1, 256, (120, 100)).astype(np.uint8)
+    frame = Frame.from_image(image, 0.2)
+    assert frame_image_statistics(frame) == image_statistics(image)
+    # the memo is what the learned features normalise with: a planted value changes the maps
+    feats = learned_features("inplane")
+    plain = feats.native_likelihood(Frame.from_image(image, 0.2))[0].shaft
+    assert np.array_equal(feats.native_likelihood(frame)[0].shaft, plain)
+    frame.extras["image_statistics"] = (float(np.median(image)) + 40.0, 5.0)
+    assert not np.array_equal(feats.native_likelihood(frame)[0].shaft, plain)
