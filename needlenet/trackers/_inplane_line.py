@@ -409,9 +409,11 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
             self._reappearing.clear()
         seg = self._orient(seg, frame, inner)
         reach, runs_on = self._reach_mm(seg, wm, frame, inner)
-        if runs_on and self._confirmed:
-            # the confirmed needle's weaker continuation runs on to the edge: where the map
-            # fades at depth while the needle goes on, its tip is out of view
+        if runs_on and self._confirmed and self._may_have_left_view(seg, frame, inner, frame.t):
+            # the confirmed needle's weaker continuation runs on to an edge its tip can have
+            # reached since it was seen: where the map fades at depth while the needle goes
+            # on, its tip is out of view (an edge farther off: the continuation is no needle,
+            # and the tip is looked for without it)
             self._out_of_view = self._out_of_sight = True
             return self._missed(frame, seg, (
                 f"no needle tip in view: the {seg.length_mm:.0f} mm needle's weaker "

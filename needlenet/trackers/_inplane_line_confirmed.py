@@ -1,17 +1,18 @@
 """The `line` tracker's rules for a confirmed track (``confirm_after_frames`` tip measurements
 accepted in a row): a new line from its entry longer than the needle could have grown is the
-needle merged with a tissue line beside it, a needle seen running on out of view holds the
-track, and once a confirmed needle has vanished, a line elsewhere is taken only when it grows
-as an insertion does; and before a short new track may be confirmed it must grow at all
-(``_proven``). A mixin of :class:`~._inplane_line.LineTracker`, whose state it reads
-(``params``, ``features``, the filter and the tracked line) and whose frame flags it sets."""
+needle merged with a tissue line beside it, a needle seen running on out of view (where its
+tip can have reached the edge since it was seen) holds the track, and once a confirmed needle
+has vanished, a line elsewhere is taken only when it grows as an insertion does; and before a
+short new track may be confirmed it must grow at all (``_proven``). A mixin of
+:class:`~._inplane_line.LineTracker`, whose state it reads (``params``, ``features``, the
+filter and the tracked line) and whose frame flags it sets."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from ..backends import NeedleLine, chi2_gate
-from ._inplane_geometry import on_line
+from ._inplane_geometry import distance_to_edge, on_line
 
 __all__ = ["ConfirmedTrack"]
 
@@ -33,15 +34,32 @@ class ConfirmedTrack:
         (an interface), not the needle's new line. Learned features only: with classical ones
         a confirmed track can itself be a needle-like tissue line entering where the needle
         does, and the longer line from that entry the needle."""
-        p = self.params
         if self.features.kind != "learned" or self._x is None or self._entry_mm is None or \
                 self._seen_t is None or not self._confirmed:
             return False
         if not shares_entry(seg):
             return False
+        return seg.length_mm - self._longest_mm > self._growth_bound_mm(t)
+
+    def _growth_bound_mm(self, t: float) -> float:
+        """How far (mm) the needle can have advanced since it was last seen: the filter's
+        speed prior (``initial_speed_std_mm_s``, at its gate's probability) times the time
+        since, plus the search's bridged gap."""
+        p = self.params
         speed = p.initial_speed_std_mm_s * chi2_gate(1, p.gate_probability)
-        reach = speed * max(t - self._seen_t, self.dt_s) + p.search.gap_mm
-        return seg.length_mm - self._longest_mm > reach
+        return speed * max(t - self._seen_t, self.dt_s) + p.search.gap_mm
+
+    def _may_have_left_view(self, seg: NeedleLine, frame, inner: np.ndarray, t: float) -> bool:
+        """Whether the confirmed needle's tip can have reached the edge of the view along
+        ``seg`` (oriented entry to tip) since it was last seen: the edge lies within
+        :meth:`_growth_bound_mm` of the tip the filter predicts. A weaker continuation of the
+        map that runs on to an edge farther than that is no needle (the streak past the tip of
+        plane-wave imaging, or tissue beyond it), and the needle's tip is in view."""
+        if self._x is None or self._seen_t is None:
+            return True
+        bound = self._growth_bound_mm(t)
+        room = distance_to_edge(inner, frame, self._x[:2], seg.direction, max_mm=bound + 1.0)
+        return room <= bound
 
     def _runs_out_on_axis(self, seg: NeedleLine, runs_out) -> bool:
         """Whether the search result ``seg`` is the confirmed needle (``confirm_after_frames``)
