@@ -3,6 +3,8 @@ runtime (learned feature source) and by training, so both see the same images.""
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numba
 import numpy as np
@@ -166,6 +168,11 @@ def apply_weights(a: np.ndarray, weights) -> np.ndarray:
 def model_grid(grid: Grid, shape) -> Grid:
     """The grid of an array of ``shape`` resampled from ``grid`` by :func:`_resize` (cv2's
     half-pixel centres): sample i lies at frame index (i + 1/2) n / m - 1/2 per axis."""
+    return _model_grid(grid, tuple(int(k) for k in shape))
+
+
+@functools.lru_cache(maxsize=64)  # a recording's frames share their grid
+def _model_grid(grid: Grid, shape: tuple[int, ...]) -> Grid:
     n = np.asarray(grid.shape, float)
     m = np.asarray(shape, float)
     sp = np.asarray(grid.spacing_mm, float)
@@ -183,21 +190,48 @@ def to_model_grid(image: np.ndarray, spacing_mm, model_spacing_mm) -> np.ndarray
 
 def to_frame_grid(maps: np.ndarray, frame_shape) -> np.ndarray:
     """Maps (C, *model_shape) back to the frame's shape (C, *frame_shape), linear."""
-    return np.stack([_resize(np.ascontiguousarray(m), tuple(frame_shape), 1) for m in maps])
+    shape = tuple(frame_shape)
+    m0 = np.asarray(maps)
+    if m0.ndim != 3 or m0.dtype != np.float32 or m0.shape[1:] == shape:
+        return np.stack([_resize(np.ascontiguousarray(m), shape, 1) for m in m0])
+    # 2D maps: each resized straight into the output (fresh arrays per channel, then a
+    # stack, took six times as long)
+    out = np.empty((len(m0), *shape), np.float32)
+    interp = cv2.INTER_AREA if shape[0] <= m0.shape[1] and shape[1] <= m0.shape[2] else \
+        cv2.INTER_LINEAR  # as _resize2d chooses
+    for c, m in enumerate(m0):
+        cv2.resize(np.ascontiguousarray(m), (shape[1], shape[0]), dst=out[c],
+                   interpolation=interp)
+    return out
 
 
 def pad_to_multiple(a: np.ndarray, multiple: int) -> tuple[np.ndarray, tuple[slice, ...]]:
-    """Pad the trailing spatial axes to a multiple (edge values); return the crop back."""
-    pads = [(0, (-n) % multiple) for n in a.shape]
-    if not any(p[1] for p in pads):
+    """Pad the trailing spatial axes to a multiple (edge values, as ``np.pad``'s ``"edge"``
+    mode); return the crop back."""
+    pads = [(-n) % multiple for n in a.shape]
+    crop = tuple(slice(0, n) for n in a.shape)
+    if not any(pads):
         return a, tuple(slice(None) for _ in a.shape)
-    return np.pad(a, pads, mode="edge"), tuple(slice(0, n) for n in a.shape)
+    out = np.empty([n + k for n, k in zip(a.shape, pads, strict=True)], a.dtype)
+    out[crop] = a
+    for axis, (n, k) in enumerate(zip(a.shape, pads, strict=True)):
+        if k:  # the last sample along this axis, repeated (corners from the axes before)
+            last = [slice(None)] * a.ndim
+            last[axis] = slice(n - 1, n)
+            more = [slice(None)] * a.ndim
+            more[axis] = slice(n, n + k)
+            out[tuple(more)] = out[tuple(last)]
+    return out, crop
+
+
+def _subsample(image: np.ndarray, max_samples: int) -> np.ndarray:
+    a = np.asarray(image)
+    step = max(1, int(np.ceil((a.size / max_samples) ** (1.0 / a.ndim))))
+    return a[(slice(None, None, step),) * a.ndim]
 
 
 def _nonzero_subsample(image: np.ndarray, max_samples: int) -> np.ndarray:
-    a = np.asarray(image)
-    step = max(1, int(np.ceil((a.size / max_samples) ** (1.0 / a.ndim))))
-    sub = a[(slice(None, None, step),) * a.ndim]
+    sub = _subsample(image, max_samples)
     return sub[sub != 0]
 
 
@@ -221,7 +255,11 @@ def _histogram_median(counts: np.ndarray) -> float:
 def _integer_median_mad(values: np.ndarray) -> tuple[float, float]:
     """``np.median`` of unsigned integers and of their absolute deviations from it, from
     histograms (a frame's statistics in 0.1 ms instead of 1 ms)."""
-    counts = np.bincount(values.ravel())
+    return _counts_median_mad(np.bincount(values.ravel()))
+
+
+def _counts_median_mad(counts: np.ndarray) -> tuple[float, float]:
+    """:func:`_integer_median_mad` of the integers 0, 1, ... taken ``counts`` times each."""
     med = _histogram_median(counts)
     # deviations |v - med| in half-units, integers whether the median is whole or not
     twice = np.abs(2 * np.arange(len(counts)) - int(round(2 * med)))
@@ -233,18 +271,24 @@ def image_statistics(image: np.ndarray, max_samples: int = 65536) -> tuple[float
     robust centre and spread of the ``"robust"`` normalisation. The spread falls back to the
     standard deviation where the MAD is 0, and to 1 where that is 0 too (one grey value);
     an all-zero image gives (0, 1)."""
-    nz = _nonzero_subsample(image, max_samples)
+    a = np.asarray(image)
+    if a.dtype in (np.uint8, np.uint16):  # grey levels: the same numbers from histograms
+        counts = np.bincount(_subsample(a, max_samples).ravel())
+        counts[0] = 0  # black (a margin, outside a sector): not counted
+        if not counts.any():
+            return 0.0, 1.0
+        med, mad = _counts_median_mad(counts)
+        spread = MAD_TO_SIGMA * mad
+        if not spread > 0:
+            spread = float(_nonzero_subsample(a, max_samples).astype(np.float64).std())
+        return med, (spread if spread > 0 else 1.0)
+    nz = _nonzero_subsample(a, max_samples)
     if nz.size == 0:
         return 0.0, 1.0
-    if nz.dtype in (np.uint8, np.uint16):  # grey levels: the same numbers from histograms
-        med, mad = _integer_median_mad(nz)
-    else:
-        nz = nz.astype(np.float64)
-        med = float(np.median(nz))
-        mad = float(np.median(np.abs(nz - med)))
-    spread = MAD_TO_SIGMA * mad
+    nz = nz.astype(np.float64)
+    med = float(np.median(nz))
+    spread = MAD_TO_SIGMA * float(np.median(np.abs(nz - med)))
     if not spread > 0:
-        nz = nz.astype(np.float64)
         spread = float(nz.std())
     return med, (spread if spread > 0 else 1.0)
 
@@ -285,9 +329,14 @@ def normalize(x: np.ndarray, norm: dict, level: float | None = None) -> np.ndarr
     if mode == "robust":
         med, spread = image_statistics(x) if level is None else level
         lo, hi = norm.get("clip", NORMALIZATIONS["robust"]["clip"])
-        z = np.clip((x - np.float32(med)) / np.float32(spread), np.float32(lo), np.float32(hi))
-        z = (z - mean) / std
-        return np.where(x == 0, np.float32(norm.get("zero_value",
-                                                     NORMALIZATIONS["robust"]["zero_value"])),
-                        z).astype(np.float32)
+        # in place on one new array: the same numbers as the expression written out
+        z = x - np.float32(med)
+        z /= np.float32(spread)
+        np.clip(z, np.float32(lo), np.float32(hi), out=z)
+        if mean != 0:  # (z - 0) / 1 is z
+            z -= mean
+        if std != 1:
+            z /= std
+        z[x == 0] = np.float32(norm.get("zero_value", NORMALIZATIONS["robust"]["zero_value"]))
+        return z.astype(np.float32, copy=False)
     raise ValueError(f"unknown intensity normalisation mode {mode!r}")
