@@ -52,9 +52,17 @@ def imaged_region(frame: Frame) -> np.ndarray:
     if "imaged_region" in frame.extras:
         return frame.extras["imaged_region"]
     im = np.asarray(frame.image)
-    tests = [(level, k) for level, k in _boxes(frame) if _blank_on_border(im, level, k)]
+    edges = {t: _border_blank(im, *t) for t in _boxes(frame)}
+    tests = [t for t, e in edges.items() if any(side.any() for side in e)]
     valid = np.ones(im.shape, bool)  # no margin: every blank area lies inside the image
-    if tests:
+    # blank areas run along the border for at most the blank border pixels' length in all:
+    # under MARGIN_ALONG_MM none is margin, and the whole frame need not be read
+    dz, dx = frame.grid.spacing_mm
+    sides = [np.logical_or.reduce([e[i] for e in edges.values()]) for i in range(4)] \
+        if edges else []
+    along = sum(float(np.count_nonzero(side)) * step
+                for side, step in zip(sides, (dx, dx, dz, dz), strict=False))
+    if tests and along >= MARGIN_ALONG_MM - 1e-9:
         blank = np.zeros(im.shape, bool)
         for level, k in tests:
             blank |= _blank(im, level, k)
@@ -111,15 +119,10 @@ def _margins(labels: np.ndarray, spacing_mm) -> np.ndarray:
     return np.flatnonzero(along >= MARGIN_ALONG_MM)
 
 
-def _blank_on_border(im: np.ndarray, level: float, k: tuple[int, int]) -> bool:
-    """Whether a pixel on the frame's border is blank by the test of (``level``, box ``k`` =
-    (width, height) pixels), reading only the strips along the border that the boxes cover."""
+def _border_blank(im: np.ndarray, level: float, k: tuple[int, int]) -> tuple[np.ndarray, ...]:
+    """The blank pixels (by the test of (``level``, box ``k`` = (width, height) pixels)) of
+    the frame's first row, last row, first column and last column, reading only the strips
+    along the border that the boxes cover (the same values as :func:`_blank` of the frame)."""
     kx, kz = min(k[0], im.shape[1]), min(k[1], im.shape[0])
-    strips = ((im[:kz], 0, None), (im[-kz:], -1, None), (im[:, :kx], None, 0),
-              (im[:, -kx:], None, -1))
-    for strip, row, col in strips:
-        b = _blank(strip, level, k)
-        edge = b[row] if row is not None else b[:, col]
-        if np.any(edge):
-            return True
-    return False
+    return (_blank(im[:kz], level, k)[0], _blank(im[-kz:], level, k)[-1],
+            _blank(im[:, :kx], level, k)[:, 0], _blank(im[:, -kx:], level, k)[:, -1])
