@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..features import Frame
-from ._inplane_line_echo import frame_spread, image_strip
+from ._inplane_line_echo import frame_float32, frame_spread, image_strip
 
 __all__ = ["EchoEndParams", "echo_end"]
 
@@ -99,7 +99,7 @@ def _largest_drop(frame: Frame, start_mm: np.ndarray, direction: np.ndarray,
         return None
     d = np.asarray(direction, float)
     across = np.arange(-p.across_mm, p.across_mm + 1e-9, step)
-    image = np.asarray(frame.image, np.float32)
+    image = frame_float32(frame)
     profile = image_strip(image, frame, np.asarray(start_mm, float), d,
                           np.array([-d[1], d[0]]), t, across).max(axis=0)
     means = _means(profile, k)
@@ -130,7 +130,7 @@ def _band_fall(frame: Frame, start_mm: np.ndarray, direction: np.ndarray,
     d = np.asarray(direction, float)
     down = np.array([-d[1], d[0]]) if d[0] >= 0 else np.array([d[1], -d[0]])  # z grows
     across = np.arange(p.band_mm[0], p.band_mm[1] + 1e-9, step)
-    image = np.asarray(frame.image, np.float32)
+    image = frame_float32(frame)
     strip = image_strip(image, frame, np.asarray(start_mm, float), d, down, t, across)
     profile = strip.mean(axis=0)
     shaft = t <= shaft_to
