@@ -39,6 +39,12 @@ def _boxes(frame: Frame) -> list[tuple[float, tuple[int, int]]]:
 
 def _blank(im: np.ndarray, level: float, k: tuple[int, int]) -> np.ndarray:
     """Pixels whose box ``k`` is at most a fifth above ``level``."""
+    n = k[0] * k[1]
+    if n % 5 and n < 65536:
+        # counted in integers (a third of the time): with n no multiple of 5 no box is
+        # exactly a fifth, so "count < n / 5" is the mean's "<= 0.2" whatever its rounding
+        count = cv2.boxFilter((im > level).view(np.uint8), cv2.CV_16U, k, normalize=False)
+        return count < (n + 4) // 5
     return cv2.blur((im > level).astype(np.float32), k) <= 0.2
 
 
@@ -68,7 +74,9 @@ def imaged_region(frame: Frame) -> np.ndarray:
             blank |= _blank(im, level, k)
         if blank.any():
             n, labels = cv2.connectedComponents(blank.astype(np.uint8), connectivity=4)
-            valid = ~np.isin(labels, _margins(labels, frame.grid.spacing_mm))
+            imaged = np.ones(n, bool)
+            imaged[_margins(labels, frame.grid.spacing_mm)] = False
+            valid = imaged[labels]
     frame.extras["imaged_region"] = valid
     return valid
 
