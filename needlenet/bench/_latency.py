@@ -1,7 +1,8 @@
 """``needlenet bench latency``: per-frame time of every tracker with both feature kinds.
 
 Each tracker runs over a seeded synth sequence at its paper's frame size (Mathiassen's
-500 x 384 in-plane frames at 0.1 mm, Carriere's 128 x 128 axial slices, Zhao's 128^3 volumes);
+500 x 384 in-plane frames at 0.1 mm, Carriere's 128 x 128 axial slices, Zhao's 128^3 volumes),
+and the default in-plane tracker also on 1200 x 960 frames at 0.05 mm (a screen capture's);
 the time is the tracker's own per-frame latency (features, back end and bookkeeping, measured
 inside ``Tracker.update`` with ``time.perf_counter``), excluding the simulator. Detection (the
 frames up to the first one reported ``tracking``: the whole-image search, model warm-up, and
@@ -29,6 +30,11 @@ def _cases(tier: str) -> list[tuple]:
         ("inplane", inplane_methods, "inplane",
          {"frames": 60 if tier == "full" else 30, "angle_deg": 35.0, "speed_mm_s": 10.0,
           "background": "inhomogeneous"}),
+        # a screen capture's size: 1200 x 960 pixels at 0.05 mm (the default tracker only)
+        ("inplane", ("line",), "inplane",
+         {"frames": 40 if tier == "full" else 20, "angle_deg": 35.0, "speed_mm_s": 10.0,
+          "background": "inhomogeneous", "spacing_mm": 0.05, "width_mm": 48.0,
+          "depth_mm": 60.0}),
         ("axial", ("carriere",), "axial",
          {"insertion_mm": 60.0 if tier == "full" else 30.0, "background": "inhomogeneous"}),
         ("volume", ("ransac", "roi-rk", "chatelain"), "volume",
@@ -54,7 +60,8 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None) -> 
                 detect, steady = split_detection(est, lat)
                 row = {
                     "suite": "latency", "tracker": tracker, "method": m, "features": kind,
-                    "shape": shape, "spacing_mm": [float(v) for v in seq.spacing_mm],
+                    "shape": shape, "frame": "x".join(map(str, shape)),
+                    "spacing_mm": [float(v) for v in seq.spacing_mm],
                     "sequences": 1, "frames": int(seq.n_frames), "seeds": [sd],
                     "first_frame_ms": float(lat[0]),
                     "detection_ms": float(detect.max()), "detection_frames": int(detect.size),

@@ -37,7 +37,7 @@ GROUP_BY = {
     "inplane": ("method",), "axial": ("method", "D_mm"),
     "volume": ("table", "method", "alpha_deg", "cr"),
     "servo": ("scenario", "method", "run"),
-    "latency": ("tracker", "method"),
+    "latency": ("tracker", "method", "frame"),
     "external": ("sequence",), "honesty": ("method",),
 }
 PAPERS = {
