@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import cv2
+import numba
 import numpy as np
 from scipy import ndimage
 
@@ -172,17 +173,9 @@ def hough_peaks(pts: np.ndarray, w: np.ndarray, thetas_rad: np.ndarray, rho_bin_
     else:
         lo, hi = float(rho_window[0]), float(rho_window[1])
     n_bins = max(int(np.ceil((hi - lo) / rho_bin_mm)) + 1, 1)
-    acc = np.empty((len(thetas), n_bins))
-    for a0, rho in blocks:
-        k = rho.shape[1]
-        b = np.floor((rho - lo) * (1.0 / rho_bin_mm)).astype(np.int32)
-        ok = (b >= 0) & (b < n_bins) if rho_window is not None else None
-        b += (np.arange(k, dtype=np.int32) * n_bins)[None, :]
-        weights = np.broadcast_to(w32[:, None], b.shape)
-        if ok is not None:  # the votes inside the window (decided on the bin, as counted)
-            b, weights = b[ok], weights[ok]
-        acc[a0:a0 + k] = np.bincount(b.ravel(), weights=weights.ravel(),
-                                     minlength=k * n_bins).reshape(k, n_bins)
+    acc = np.zeros((len(thetas), n_bins))
+    for a0, rho in blocks:  # the votes inside the window (decided on the bin, as counted)
+        _vote(rho, w32, lo, 1.0 / rho_bin_mm, acc[a0:a0 + rho.shape[1]])
     acc = ndimage.uniform_filter1d(acc, 3, axis=1, mode="constant") * 3.0
     flat_acc = acc.ravel()
     order = np.flatnonzero(flat_acc > 0)  # most cells are empty (and slow to partition)
@@ -199,6 +192,23 @@ def hough_peaks(pts: np.ndarray, w: np.ndarray, thetas_rad: np.ndarray, rho_bin_
             if len(out) == n_peaks:
                 break
     return np.asarray(out, float).reshape(-1, 3)
+
+
+@numba.njit(cache=True, nogil=True)
+def _vote(rho, w, lo, inv, acc):  # pragma: no cover - compiled
+    """acc[a, b] += w[i] for each point i and direction a, b = floor((rho[i, a] - lo) * inv)
+    in float32 (numpy's arithmetic on these arrays), votes outside acc's bins skipped; each
+    bin sums its votes in point order, as ``np.bincount`` does (the same sums to the bit,
+    without its (points, directions) index and weight arrays)."""
+    n, k = rho.shape
+    n_bins = acc.shape[1]
+    lo32, inv32 = np.float32(lo), np.float32(inv)
+    for i in range(n):
+        wi = np.float64(w[i])
+        for a in range(k):
+            b = int(np.floor((rho[i, a] - lo32) * inv32))
+            if 0 <= b < n_bins:
+                acc[a, b] += wi
 
 
 def _angle_diff(a: float, b: float) -> float:
