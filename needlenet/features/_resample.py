@@ -200,8 +200,10 @@ def to_frame_grid(maps: np.ndarray, frame_shape) -> np.ndarray:
     interp = cv2.INTER_AREA if shape[0] <= m0.shape[1] and shape[1] <= m0.shape[2] else \
         cv2.INTER_LINEAR  # as _resize2d chooses
     for c, m in enumerate(m0):
-        cv2.resize(np.ascontiguousarray(m), (shape[1], shape[0]), dst=out[c],
-                   interpolation=interp)
+        r = cv2.resize(np.ascontiguousarray(m), (shape[1], shape[0]), dst=out[c],
+                       interpolation=interp)
+        if not np.may_share_memory(r, out):  # an OpenCV that did not write into dst
+            out[c] = r
     return out
 
 
