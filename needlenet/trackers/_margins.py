@@ -64,10 +64,9 @@ def imaged_region(frame: Frame) -> np.ndarray:
     # blank areas run along the border for at most the blank border pixels' length in all:
     # under MARGIN_ALONG_MM none is margin, and the whole frame need not be read
     dz, dx = frame.grid.spacing_mm
-    sides = [np.logical_or.reduce([e[i] for e in edges.values()]) for i in range(4)] \
-        if edges else []
+    sides = [np.logical_or.reduce([e[i] for e in edges.values()]) for i in range(4)]
     along = sum(float(np.count_nonzero(side)) * step
-                for side, step in zip(sides, (dx, dx, dz, dz), strict=False))
+                for side, step in zip(sides, (dx, dx, dz, dz), strict=True))
     if tests and along >= MARGIN_ALONG_MM - 1e-9:
         blank = np.zeros(im.shape, bool)
         for level, k in tests:
