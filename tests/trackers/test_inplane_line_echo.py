@@ -184,3 +184,19 @@ def test_settings_out_of_range_are_refused():
         EchoTestParams(band_mm=(3.0, 2.0))
     with pytest.raises(ValueError, match="echo test"):
         EchoTestParams(anechoic_sd=0.0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_row_medians_are_each_rows_lower_middle_imaged_pixel(seed):
+    from needlenet.trackers._inplane_line_echo import _row_medians
+
+    rng = np.random.default_rng(seed)
+    h, w = rng.integers(1, 300, 2)
+    image = rng.integers(0, 256 if seed % 2 else 5, (h, w)).astype(np.uint8)
+    image[:, : w // 3] = 0  # a black margin: not imaged
+    image[rng.integers(0, h)] = 0  # a row without an imaged pixel
+    read = image[:, ::2] if w > 256 else image
+    want = np.array([np.sort(r[r > 0])[(np.count_nonzero(r) - 1) // 2] if r.any() else np.nan
+                     for r in read], float)
+    np.testing.assert_array_equal(_row_medians(image), want)
+    np.testing.assert_array_equal(_row_medians(image.astype(np.float32)), want)
