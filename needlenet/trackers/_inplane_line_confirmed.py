@@ -50,12 +50,20 @@ class ConfirmedTrack:
         return speed * max(t - self._seen_t, self.dt_s) + p.search.gap_mm
 
     def _may_have_left_view(self, seg: NeedleLine, frame, inner: np.ndarray, t: float) -> bool:
-        """Whether the confirmed needle's tip can have reached the edge of the view along
-        ``seg`` (oriented entry to tip) since it was last seen: the edge lies within
-        :meth:`_growth_bound_mm` of the tip the filter predicts. A weaker continuation of the
-        map that runs on to an edge farther than that is no needle (the streak past the tip of
-        plane-wave imaging, or tissue beyond it), and the needle's tip is in view."""
+        """Whether the confirmed needle's tip may lie out of view along ``seg`` (oriented
+        entry to tip) where a weaker continuation of the map runs on to the edge. Not where
+        the tip is seen advancing (the filter's speed along the needle above its uncertainty
+        at the gate's probability) and the edge lies beyond :meth:`_growth_bound_mm` of the
+        tip the filter predicts: the continuation then runs ahead of a tip that moves with
+        the needle (the streak past the tip of plane-wave imaging, or tissue beyond it). A
+        tip that has stopped while the map runs on may be a needle fading on the map as it
+        goes on: its tip may be anywhere along the continuation."""
         if self._x is None or self._seen_t is None:
+            return True
+        d = np.asarray(seg.direction, float)
+        speed = float(self._x[2:] @ d)
+        spread = float(np.sqrt(max(d @ self._P[2:, 2:] @ d, 0.0)))
+        if not speed > chi2_gate(1, self.params.gate_probability) * spread:
             return True
         bound = self._growth_bound_mm(t)
         room = distance_to_edge(inner, frame, self._x[:2], seg.direction, max_mm=bound + 1.0)

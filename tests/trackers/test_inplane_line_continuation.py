@@ -1,7 +1,9 @@
 """A confirmed needle whose map goes on past its tip, more weakly, to the edge of the view:
 its tip has left the view only if it can have reached that edge since it was seen (the
-filter's speed prior); an edge farther off makes the weak continuation no needle (the streak
-past a tip of plane-wave imaging), and the tip stays tracked where the needle ends."""
+filter's speed prior); where the tip is seen advancing and the edge is farther off, the weak
+continuation is no needle (the streak past a tip of plane-wave imaging), and the tip stays
+tracked where the needle ends. A tip that stops while the map runs on may be a needle that
+fades on the map as it goes on: lost, not tracked where the map stopped."""
 
 import cv2
 import numpy as np
@@ -29,21 +31,23 @@ class _Maps(FeatureSource):
         return Likelihood(shaft=self.maps[frame.index], tip=None, source=self.name)
 
 
-def _run(tip_cols):
+def _run(tip_cols, fade_col=W):
     """A needle from the top edge at about 17 degrees, its tip advancing through the columns
-    ``tip_cols`` (one a frame, 20 frames/s), confident (0.9) on the map up to its tip and
-    weaker (0.35: above ``learned_extend_level``, under ``learned_level``) from there to the
-    right edge: (estimates, true tips (x, z) mm)."""
+    ``tip_cols`` (one a frame, 20 frames/s), confident (0.9) on the map up to its tip (or up
+    to ``fade_col``, where the needle fades on the map) and weaker (0.35: above
+    ``learned_extend_level``, under ``learned_level``) from there to the right edge:
+    (estimates, true tips (x, z) mm)."""
     entry = np.array([0.0, 10.0])  # (row, col)
     d = np.array([0.3, 1.0]) / np.hypot(0.3, 1.0)
     maps, tips = [], []
     for col in tip_cols:
         tip = entry + d * (col - entry[1]) / d[1]
+        seen = entry + d * (min(col, fade_col) - entry[1]) / d[1]
         edge = entry + d * (W - 1 - entry[1]) / d[1]
         shaft = np.zeros((H, W), np.float32)
-        cv2.line(shaft, (int(tip[1]), int(round(tip[0]))), (int(edge[1]), int(round(edge[0]))),
-                 0.35, 3)
-        cv2.line(shaft, (int(entry[1]), int(entry[0])), (int(tip[1]), int(round(tip[0]))),
+        cv2.line(shaft, (int(seen[1]), int(round(seen[0]))),
+                 (int(edge[1]), int(round(edge[0]))), 0.35, 3)
+        cv2.line(shaft, (int(entry[1]), int(entry[0])), (int(seen[1]), int(round(seen[0]))),
                  0.9, 3)
         maps.append(shaft)
         tips.append(np.array([tip[1], tip[0]]) * STEP)
@@ -73,3 +77,19 @@ def test_a_weak_continuation_to_the_edge_is_the_tip_leaving_only_where_it_can_ha
         # have left the view
         assert not tracking[4:].any()
         assert "runs on to the edge" in est[4].reason
+
+
+def test_a_needle_fading_on_the_map_is_lost_once_its_tip_stops_advancing_there():
+    # the map's confident evidence stops at column 180 (22 mm from the edge along the needle)
+    # while the needle goes on 1 mm a frame: tracked while its measured tip still advances,
+    # lost within a few frames of it stopping, never a tip more than 3 mm off
+    cols = np.arange(36) * 5 + 120
+    est, tips = _run(cols, fade_col=180)
+    tracking = np.array([e.status == Status.TRACKING for e in est])
+    assert tracking[3:12].all(), [e.reason for e in est[:12]]
+    err = [float(np.linalg.norm(e.tip_mm - t)) for e, t in zip(est, tips, strict=True)
+           if e.tip_mm is not None]
+    assert max(err) < 3.0, err
+    assert not tracking[18:].any()
+    assert "runs on to the edge" in est[18].reason
+
