@@ -144,7 +144,7 @@ def working_map(values: np.ndarray, grid: Grid, step_mm: float) -> WorkingMap:
                       oz + (0.5 * sz - 0.5) * dz, step)
 
 
-_VOTE_BLOCK = 32768  # (point, direction) votes binned at once by hough_peaks
+_VOTE_BLOCK = 32768  # (point, direction) offsets computed and voted at once by hough_peaks
 
 
 def _normal(theta: np.ndarray) -> np.ndarray:
@@ -162,9 +162,8 @@ def hough_peaks(pts: np.ndarray, w: np.ndarray, thetas_rad: np.ndarray, rho_bin_
     thetas = np.asarray(thetas_rad, float)
     normals = _normal(thetas).T.astype(np.float32)
     p32, w32 = pts.astype(np.float32), np.asarray(w, np.float32)
-    # the votes are counted a block of directions at a time: temporaries of a few hundred
-    # kB instead of megabytes for all (points, directions), which cost more to allocate
-    # than to count
+    # the lines' offsets rho are computed and voted a block of directions at a time: a few
+    # hundred kB of temporaries instead of megabytes for all (points, directions)
     step = max(_VOTE_BLOCK // max(len(p32), 1), 1)
     blocks = [(a0, p32 @ normals[:, a0:a0 + step]) for a0 in range(0, len(thetas), step)]
     if rho_window is None:
