@@ -354,6 +354,14 @@ def sample_from_sequence(seq, i: int, cfg: DataConfig, rng: np.random.Generator 
             if rng.random() < 0.5:
                 x = np.flip(x, ax)
                 y = np.flip(y, ax + 1)
+        # a frame smaller than the crop: padded to the crop's side (edge values, no target
+        # outside the frame), so that every sample of a batch has one shape
+        full = np.full(g.ndim, crop_n - crop_n % INPUT_MULTIPLE)
+        if np.any(size < full):
+            x = np.pad(x, [(0, int(n - m)) for n, m in zip(full, x.shape, strict=True)],
+                       mode="edge")
+            y = np.pad(y, [(0, 0)] + [(0, int(n // OUTPUT_STRIDE - m)) for n, m in
+                                      zip(full, y.shape[1:], strict=True)])
     x = normalize(np.ascontiguousarray(x, np.float32), norm, level)
     return np.ascontiguousarray(x[None], np.float32), np.ascontiguousarray(y, np.float32)
 

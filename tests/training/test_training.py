@@ -144,6 +144,18 @@ def test_sample_crop_is_a_multiple_and_normalised():
     assert abs(float(x.mean())) < 3
 
 
+def test_a_crop_larger_than_the_frame_is_padded_to_the_crop():
+    # frames of different sizes must give samples of one shape, or a batch cannot be stacked
+    seq = synth.generate("inplane", seed=3, frames=1, width_mm=20, depth_mm=25)
+    cfg = DataConfig(crop=160, spacing_mm=0.2)
+    whole = sample_from_sequence(seq, 0, cfg, None)[0].shape[1:]  # 25 x 20 mm: < 160 px
+    x, y = sample_from_sequence(seq, 0, cfg, np.random.default_rng(0))
+    assert x.shape == (1, 160, 160) and y.shape == (2, 80, 80)
+    h, w = (n // 2 for n in whole)
+    assert y[:, h:].max() == 0 and y[:, :, w:].max() == 0  # no needle outside the frame
+    assert y[0, :h, :w].max() > 0.5
+
+
 def test_short_training_lowers_the_loss(tmp_path):
     from training.train import config_for, train
 
