@@ -35,8 +35,8 @@ import synth
 from ..eval._coverage import region_coverage, reported_tips
 from ..io import RecordingError, load_recording
 
-__all__ = ["data_dir", "external_sequences", "frame_classes", "markdown", "run",
-           "sequence_metrics", "pooled_metrics"]
+__all__ = ["data_dir", "external_sequences", "frame_classes", "frame_records", "markdown",
+           "run", "sequence_metrics", "pooled_metrics"]
 
 QUICK_SEQUENCES = ("lin_left_top_30", "ph_interface_no_needle")
 
@@ -138,6 +138,28 @@ def estimate_metrics(est: list, seq: synth.Sequence) -> tuple[np.ndarray, np.nda
                                                tip_cov)
 
 
+FRAME_FIELDS = ("sequence", "features", "frame", "class", "status", "tip_error_mm", "reason")
+
+
+def frame_records(est: list, seq: synth.Sequence, tip_est: np.ndarray) -> list[dict]:
+    """One record per frame of a tracked sequence (the report's ``frames.csv``, without the
+    sequence and features): its class (``needle``, ``needle-free``, or ``-``: a needle not
+    visible enough to count either way), the reported status, the tip error (mm, when a tip
+    was reported on a labelled frame) and the tracker's reason for a frame without one."""
+    needle, free = frame_classes(seq)
+    tip_true = None if seq.tip_mm is None else np.asarray(seq.tip_mm, float)
+    out = []
+    for i, e in enumerate(est):
+        err = None
+        if tip_true is not None and np.all(np.isfinite(tip_true[i])) and \
+                np.all(np.isfinite(tip_est[i])):
+            err = round(float(np.linalg.norm(tip_est[i] - tip_true[i])), 3)
+        out.append({"frame": i, "class": "needle" if needle[i] else
+                    ("needle-free" if free[i] else "-"), "status": e.status.value,
+                    "tip_error_mm": err, "reason": e.reason or ""})
+    return out
+
+
 def pooled_metrics(per_sequence: list[dict]) -> dict:
     """The metrics over all frames of several sequences (errors and counts pooled)."""
     err = np.concatenate([np.asarray(m["tip_errors_mm"], float) for m in per_sequence]) \
@@ -232,7 +254,8 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
             method, est = _track(seq, kind, seed + i, model)
             tracking, tip_est, m = estimate_metrics(est, seq)
             per.append(m)
-            traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est}
+            traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est,
+                                    "frames": frame_records(est, seq, tip_est)}
             lat = np.array([e.latency_ms for e in est], float)
             row = {"suite": "external", "tracker": "inplane", "method": method,
                    "features": kind, "model": model if kind == "learned" else None,

@@ -28,7 +28,15 @@ import numpy as np
 
 import synth
 
-from ._external import _fmt, _pct, estimate_metrics, frame_classes, pooled_metrics, table_rows
+from ._external import (
+    _fmt,
+    _pct,
+    estimate_metrics,
+    frame_classes,
+    frame_records,
+    pooled_metrics,
+    table_rows,
+)
 
 __all__ = ["PREDICT_AHEAD_MM", "axial_data_dir", "markdown_axial", "run_axial_set",
            "tip_prediction"]
@@ -89,7 +97,8 @@ def run_axial_set(seqs, seed: int, log, rows: list, model: str | None,
                 preds.append(pred["tip_prediction_error_mm"])
                 abs_preds.append(pred["tip_prediction_absolute_mm"])
             traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est,
-                                    "status": [e.status.value for e in est]}
+                                    "status": [e.status.value for e in est],
+                                    "frames": frame_records(est, seq, tip_est)}
             lat = np.array([e.latency_ms for e in est], float)
             row = {"suite": "external", "tracker": "axial", "method": "carriere",
                    "features": kind, "model": model if kind == "learned" else None,

@@ -31,6 +31,7 @@ from ._external import (
     _pct,
     estimate_metrics,
     frame_classes,
+    frame_records,
     pooled_metrics,
     table_rows,
 )
@@ -92,7 +93,8 @@ def run_volume_set(seqs, seed: int, log, rows: list, model: str | None,
             failed, needle_volumes = failed + f, needle_volumes + n
             per.append(m)
             traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est,
-                                    "status": [e.status.value for e in est]}
+                                    "status": [e.status.value for e in est],
+                                    "frames": frame_records(est, seq, tip_est)}
             lat = np.array([e.latency_ms for e in est], float)
             row = {"suite": "external", "tracker": "volume", "method": method,
                    "features": kind, "model": model if kind == "learned" else None,

@@ -8,6 +8,7 @@ suite ends), so an interrupted or killed run keeps the rows it finished.
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import os
@@ -275,6 +276,26 @@ def run_suite(name: str, quick: bool = False, json_out: str | Path | None = None
     return result
 
 
+def _write_frames(out_dir: Path, traces: dict) -> bool:
+    """``frames.csv``: the per-frame records of traces keyed (sequence, features) that carry
+    them (``frames``, :func:`~._external.frame_records`); False when none does."""
+    from ._external import FRAME_FIELDS
+
+    keyed = [(key, t["frames"]) for key, t in traces.items()
+             if isinstance(t, dict) and "frames" in t and isinstance(key, tuple)]
+    if not keyed:
+        return False
+    tmp = out_dir / ".frames.csv.tmp"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=FRAME_FIELDS)
+        w.writeheader()
+        for (sequence, features), records in keyed:
+            for r in records:
+                w.writerow({"sequence": sequence, "features": features, **r})
+    os.replace(tmp, out_dir / "frames.csv")
+    return True
+
+
 def _write_report(out_dir: Path, name: str, result: dict, mod, traces: dict,
                   partial: bool = False) -> Path:
     m = result["machine"]
@@ -303,6 +324,8 @@ def _write_report(out_dir: Path, name: str, result: dict, mod, traces: dict,
                 lines += ["## Plots", ""]
                 for caption, fname in figs:
                     lines += [f"![{caption}]({fname})", "", f"*{caption}*", ""]
+    if not partial and _write_frames(out_dir, traces):
+        lines += ["Each frame's status, tip error and the tracker's reason: `frames.csv`."]
     lines += ["Rows: `results.json` in this directory."]
     path = out_dir / "report.md"
     tmp = out_dir / ".report.md.tmp"

@@ -183,6 +183,53 @@ def test_the_suite_runs_on_a_short_sequence(committed, tmp_path):
     assert untimed(only) == untimed([r for r in rows if r["features"] == "classical"])
 
 
+def test_frame_records_give_each_frames_class_status_error_and_reason():
+    from needlenet.trackers._base import NeedleEstimate, Status
+
+    seq = synth.generate("inplane", seed=4, frames=3, width_mm=20, depth_mm=25)
+    seq.visible = np.array([True, True, False])
+    tip = np.asarray(seq.tip_mm, float)
+    est = [NeedleEstimate(t=0.0, status=Status.TRACKING, tip_mm=tip[0] + [3.0, 4.0]),
+           NeedleEstimate(t=0.05, status=Status.LOST, reason="no needle: a reason"),
+           NeedleEstimate(t=0.1, status=Status.TRACKING, tip_mm=tip[2])]
+    tip_est = np.array([tip[0] + [3.0, 4.0], [np.nan, np.nan], tip[2]])
+    recs = ext.frame_records(est, seq, tip_est)
+    assert [(r["frame"], r["class"], r["status"]) for r in recs] == [
+        (0, "needle", "tracking"), (1, "needle", "lost"), (2, "-", "tracking")]
+    assert recs[0]["tip_error_mm"] == pytest.approx(5.0) and recs[0]["reason"] == ""
+    assert recs[1]["tip_error_mm"] is None and recs[1]["reason"] == "no needle: a reason"
+    assert recs[2]["tip_error_mm"] == pytest.approx(0.0)
+
+
+def test_the_report_lists_every_frame(tmp_path, capsys):
+    import csv
+
+    from needlenet.cli import main
+
+    data = tmp_path / "set"
+    data.mkdir()
+    synth.save_sequence(synth.generate("inplane", seed=4, frames=3, width_mm=20, depth_mm=25),
+                        data / "mine.npz")
+    free = synth.generate("inplane", seed=5, frames=2, width_mm=20, depth_mm=25,
+                          needle_free=True)
+    free.meta["needle"] = False
+    synth.save_sequence(free, data / "none.npz")
+    report = tmp_path / "report"
+    assert main(["bench", "external", "--data", str(data), "--report", str(report)]) == 0
+    capsys.readouterr()
+    with open(report / "frames.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert "frames.csv" in (report / "report.md").read_text()
+    kinds = sorted({r["features"] for r in rows})
+    assert len(rows) == 5 * len(kinds)
+    for r in rows:
+        assert r["class"] == ("needle-free" if r["sequence"] == "none" else "needle")
+        assert r["status"] in ("tracking", "lost", "searching")
+        # a frame without a tip says why
+        assert (r["tip_error_mm"] == "") == (r["status"] != "tracking") or r["class"] != "needle"
+        assert (r["reason"] != "") == (r["status"] != "tracking")
+
+
 def test_the_suite_is_registered():
     with pytest.raises(ValueError, match="unknown suite"):
         run_suite("externals")
