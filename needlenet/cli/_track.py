@@ -341,6 +341,21 @@ def _report(args, seq, estimates, out_json, overlay, out_plus, model_grid=None) 
         print(f"wrote {out_plus}")
 
 
+MAX_REASONS = 3  # the reasons the summary lists
+
+
+def reason_counts(estimates) -> list[tuple[str, int]]:
+    """The reasons the tracker gave for frames it reported without a needle, each with its
+    number of frames, most frequent first: the text with its figures as ``N`` (the lengths and
+    distances of one cause differ from frame to frame)."""
+    import re
+    from collections import Counter
+
+    texts = [re.sub(r"\d+(?:\.\d+)?", "N", e.reason) for e in estimates
+             if e.status.value != "tracking" and e.reason]
+    return sorted(Counter(texts).items(), key=lambda kv: (-kv[1], kv[0]))
+
+
 def write_summary(args, estimates, out_json, metrics=None, about=None) -> None:
     """The summary on stdout (``about`` the recording and the model: its spacing, the grid
     the model ran on; the paper's ``metrics`` of a labelled recording, else the latency),
@@ -358,6 +373,9 @@ def write_summary(args, estimates, out_json, metrics=None, about=None) -> None:
     # said it did not (a recording without labels has no other figure of what it found)
     for s in ("tracking", "lost", "searching"):
         summary[f"frames_{s}"] = statuses.count(s)
+    # why the frames without a needle had none: the most frequent reasons first
+    summary["reasons"] = [f"{n} frame{'s' * (n != 1)}: {text}"
+                          for text, n in reason_counts(estimates)[:MAX_REASONS]]
     summary = finite_json(summary)
     print(json.dumps({k: v for k, v in summary.items() if not isinstance(v, dict)}, indent=1,
                      allow_nan=False))

@@ -1,6 +1,7 @@
 """needlenet track: end to end on sequence files, metrics in the JSON, clear errors."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -35,7 +36,27 @@ def test_track_writes_frames_summary_and_overlay(inplane_file, tmp_path, capsys)
     for status in ("tracking", "lost", "searching"):
         assert s[f"frames_{status}"] == sum(fr["status"] == status for fr in res["frames"])
     assert s["frames_tracking"] + s["frames_lost"] + s["frames_searching"] == 12
+    assert isinstance(s["reasons"], list)
     assert gif.stat().st_size > 1000 and gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+
+
+def test_the_summary_counts_the_reasons_for_frames_without_a_needle(tmp_path, capsys):
+    # a needle-free recording: every frame says why it has no needle, the reasons counted
+    # with their figures masked, the most frequent first
+    seq = synth.generate("inplane", seed=113, frames=14, needle_free=True)
+    f = synth.save_sequence(seq, tmp_path / "free.npz")
+    out = tmp_path / "r.json"
+    assert main(["track", str(f), "--json", str(out), "--quiet"]) == 0
+    capsys.readouterr()
+    res = json.loads(out.read_text())
+    reasons = [fr["reason"] for fr in res["frames"] if fr["status"] != "tracking"]
+    listed = res["summary"]["reasons"]
+    assert 1 <= len(listed) <= 3
+    counts = [int(r.split(" frame")[0]) for r in listed]
+    assert counts == sorted(counts, reverse=True) and sum(counts) <= len(reasons)
+    assert not any(ch.isdigit() for r in listed for ch in r.split(": ", 1)[1])
+    masked = [re.sub(r"\d+(?:\.\d+)?", "N", r) for r in reasons]
+    assert counts[0] == max(masked.count(m) for m in set(masked))
 
 
 def test_track_learned_features(inplane_file, tmp_path):
