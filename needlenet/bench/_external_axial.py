@@ -97,7 +97,6 @@ def run_axial_set(seqs, seed: int, log, rows: list, model: str | None,
                 preds.append(pred["tip_prediction_error_mm"])
                 abs_preds.append(pred["tip_prediction_absolute_mm"])
             traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est,
-                                    "status": [e.status.value for e in est],
                                     "frames": frame_records(est, seq, tip_est)}
             lat = np.array([e.latency_ms for e in est], float)
             row = {"suite": "external", "tracker": "axial", "method": "carriere",

@@ -93,7 +93,6 @@ def run_volume_set(seqs, seed: int, log, rows: list, model: str | None,
             failed, needle_volumes = failed + f, needle_volumes + n
             per.append(m)
             traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est,
-                                    "status": [e.status.value for e in est],
                                     "frames": frame_records(est, seq, tip_est)}
             lat = np.array([e.latency_ms for e in est], float)
             row = {"suite": "external", "tracker": "volume", "method": method,
