@@ -127,7 +127,10 @@ def needle_iq(scanner, pts: np.ndarray, tan: np.ndarray, step_mm: float,
     # shadow reaches the crop's last row
     iq_rows = crop[0]
     if len(sp_idx):
-        iq_rows = int(min(np.ceil(sp_idx[:, 0].max()) + pad[0] + 1, hi[0])) - int(lo[0])
+        # at least one row: the echo may lie wholly above the crop (a boundary above the
+        # skin line) while what it shadows is in it
+        iq_rows = max(int(min(np.ceil(sp_idx[:, 0].max()) + pad[0] + 1, hi[0])) - int(lo[0]),
+                      1)
     # the specular echo is coherent along the shaft: zero phase (no speckle on the needle)
     iq = splat(sp_idx - lo, all_amp[keep], all_phase[keep], (iq_rows,) + crop[1:])
     for axis, s in enumerate(scanner._sig_px):

@@ -146,6 +146,28 @@ def test_inplane_interface_echo_is_a_specular_line_at_its_offset_and_tilt():
             synth.generate("inplane", seed=4, **{**kw, **bad})
 
 
+def test_a_boundary_echo_above_the_needles_crop_renders():
+    """A training world whose boundary lies 6.4 mm above a shallow needle near the skin: its
+    echo crop started below the echo itself, and OpenCV was asked to blur an empty image."""
+    kw = dict(background="inhomogeneous", noise_db=-49.3, dynamic_range_db=62.3,
+              scatterers_per_cell=12.8, gauge=20, needle_echo=19.8,
+              imaging_overrides={"center_frequency_mhz": 4.3, "fractional_bandwidth": 0.44,
+                                 "f_number": 2.68, "tx_focus_mm": 18.2, "tx_f_number": 2.17,
+                                 "elevation_f_number": 5.46, "elevation_focus_mm": 11.6,
+                                 "attenuation_db_cm_mhz": 0.83, "tgc_compensation": 0.81,
+                                 "tissue_gray": 65.7},
+              needle_overrides={"specular_width_deg": 17.5, "diffuse_floor": 0.33,
+                                "reverb_decay": 0.41, "reverb_count": 5, "shadow_factor": 0.27,
+                                "tip_gain": 2.46},
+              angle_deg=19.7, speed_mm_s=11.7, spacing_mm=0.273, width_mm=32.64,
+              depth_mm=31.53, start_length_mm=3.72, stop_length_mm=33.72,
+              out_of_plane_deg=2.16, elevation_offset_mm=0.03, interface_offset_mm=-6.44,
+              interface_brightness=2.41, interface_factor=1.07, interface_echo=46.8,
+              interface_roughness=0.23, interface_tilt_deg=11.97)
+    seq = synth.generate("inplane", seed=10_000_031, frames=1, **kw)
+    assert seq.images.shape == (1, 115, 120) and seq.images.max() > seq.images.min()
+
+
 def test_volume_interface_is_a_bright_plane_along_the_needle():
     """A bright interface holding the needle's axis, rolled 10 degrees about it and moved 3 mm
     along its normal: the volume is bright on that plane beside the needle, not 3 mm off it."""
