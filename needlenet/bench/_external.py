@@ -36,7 +36,7 @@ from ..eval._coverage import region_coverage, reported_tips
 from ..io import RecordingError, load_recording
 
 __all__ = ["data_dir", "external_sequences", "frame_classes", "frame_records", "markdown",
-           "run", "sequence_metrics", "pooled_metrics"]
+           "run", "sequence_metrics", "pooled_metrics", "trace_and_metrics"]
 
 QUICK_SEQUENCES = ("lin_left_top_30", "ph_interface_no_needle")
 
@@ -160,6 +160,14 @@ def frame_records(est: list, seq: synth.Sequence, tip_est: np.ndarray) -> list[d
     return out
 
 
+def trace_and_metrics(est: list, seq: synth.Sequence) -> tuple[dict, dict]:
+    """A tracked sequence's trace (which frames were reported ``tracking``, the tips, the
+    :func:`frame_records`) and its :func:`estimate_metrics`."""
+    tracking, tip_est, m = estimate_metrics(est, seq)
+    return {"tracking": tracking, "tip_est": tip_est,
+            "frames": frame_records(est, seq, tip_est)}, m
+
+
 def pooled_metrics(per_sequence: list[dict]) -> dict:
     """The metrics over all frames of several sequences (errors and counts pooled)."""
     err = np.concatenate([np.asarray(m["tip_errors_mm"], float) for m in per_sequence]) \
@@ -252,10 +260,8 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None,
         method = None
         for i, (name, seq) in enumerate(seqs):
             method, est = _track(seq, kind, seed + i, model)
-            tracking, tip_est, m = estimate_metrics(est, seq)
+            traces[(name, kind)], m = trace_and_metrics(est, seq)
             per.append(m)
-            traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est,
-                                    "frames": frame_records(est, seq, tip_est)}
             lat = np.array([e.latency_ms for e in est], float)
             row = {"suite": "external", "tracker": "inplane", "method": method,
                    "features": kind, "model": model if kind == "learned" else None,

@@ -28,15 +28,7 @@ import numpy as np
 
 import synth
 
-from ._external import (
-    _fmt,
-    _pct,
-    estimate_metrics,
-    frame_classes,
-    frame_records,
-    pooled_metrics,
-    table_rows,
-)
+from ._external import _fmt, _pct, frame_classes, pooled_metrics, table_rows, trace_and_metrics
 
 __all__ = ["PREDICT_AHEAD_MM", "axial_data_dir", "markdown_axial", "run_axial_set",
            "tip_prediction"]
@@ -90,14 +82,12 @@ def run_axial_set(seqs, seed: int, log, rows: list, model: str | None,
             tracker = make_tracker("axial", "carriere", kind,
                                    model if kind == "learned" else None, seed=seed + i)
             est = tracker.run(seq)
-            tracking, tip_est, m = estimate_metrics(est, seq)
+            traces[(name, kind)], m = trace_and_metrics(est, seq)
             pred = tip_prediction(est, seq, frame_classes(seq)[0])
             per.append(m)
             if pred["tip_prediction_error_mm"] is not None:
                 preds.append(pred["tip_prediction_error_mm"])
                 abs_preds.append(pred["tip_prediction_absolute_mm"])
-            traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est,
-                                    "frames": frame_records(est, seq, tip_est)}
             lat = np.array([e.latency_ms for e in est], float)
             row = {"suite": "external", "tracker": "axial", "method": "carriere",
                    "features": kind, "model": model if kind == "learned" else None,

@@ -29,11 +29,10 @@ import synth
 from ._external import (
     _fmt,
     _pct,
-    estimate_metrics,
     frame_classes,
-    frame_records,
     pooled_metrics,
     table_rows,
+    trace_and_metrics,
 )
 
 __all__ = ["markdown_volume_set", "run_volume_set", "volume_data_dir", "zhao_failures"]
@@ -88,12 +87,10 @@ def run_volume_set(seqs, seed: int, log, rows: list, model: str | None,
             tracker = make_tracker("volume", method, kind,
                                    model if kind == "learned" else None, seed=seed + i)
             est = tracker.run(seq)
-            tracking, tip_est, m = estimate_metrics(est, seq)
+            traces[(name, kind)], m = trace_and_metrics(est, seq)
             f, n = zhao_failures(est, seq)
             failed, needle_volumes = failed + f, needle_volumes + n
             per.append(m)
-            traces[(name, kind)] = {"tracking": tracking, "tip_est": tip_est,
-                                    "frames": frame_records(est, seq, tip_est)}
             lat = np.array([e.latency_ms for e in est], float)
             row = {"suite": "external", "tracker": "volume", "method": method,
                    "features": kind, "model": model if kind == "learned" else None,
