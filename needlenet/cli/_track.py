@@ -373,6 +373,11 @@ def write_summary(args, estimates, out_json, metrics=None, about=None) -> None:
     # said it did not (a recording without labels has no other figure of what it found)
     for s in ("tracking", "lost", "searching"):
         summary[f"frames_{s}"] = statuses.count(s)
+    # the in-plane `line` tracker's tips read where an advancing needle gained echo (its map
+    # showed no needle line there)
+    moved = sum(bool(getattr(e.details, "tip_from_motion", False)) for e in estimates)
+    if moved:
+        summary["frames_tip_from_motion"] = moved
     # why the frames without a needle had none: the most frequent reasons first
     summary["reasons"] = [f"{n} frame{'s' * (n != 1)}: {text}"
                           for text, n in reason_counts(estimates)[:MAX_REASONS]]

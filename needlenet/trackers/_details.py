@@ -120,6 +120,8 @@ class LineDetails(EstimateDetails):
     # the learned measurement was moved back to where the needle's echo ends in the image
     tip_spread_mm: float = 0.0
     # how far apart along the line the places the frame offered for the tip lie (mm)
+    tip_from_motion: bool = False
+    # the map showed no needle line; the tip is where echo was gained since the frame before
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,10 @@ and while it is seen so no other line is taken for it: one needle is there. The 
 of the view is the edge of the frame, of a black capture margin or of a
 sector mask; a black vessel inside the image is tissue. One needle is tracked: a needle-like
 line seen beside it while it advanced is tissue, and is not taken for the needle when the
-needle leaves the plane (:mod:`._inplane_still`).
+needle leaves the plane (:mod:`._inplane_still`). Where the search offers no needle line (a
+needle merged with an interface, or one whose echo fades while it advances), the tip is read
+where echo was gained since the frame before, on the tracked needle's line or, once seen
+advancing, on a refused line that enters through the edge (:mod:`._inplane_line_motion`).
 
 Which end is the tip. A needle goes in from the skin (the top of the image) or from beyond a
 side edge and goes deeper as it advances, so of a segment that descends by more than
@@ -88,14 +91,16 @@ from ._inplane_growing import GrowingMark, StillMarks
 from ._inplane_line_confirmed import ConfirmedTrack
 from ._inplane_line_echo import echo_along
 from ._inplane_line_filter import TipKalman
+from ._inplane_line_motion import MovingTip
 from ._inplane_line_params import LineTrackerParams
 from ._inplane_line_tip import LineTip, tip_spread_covariance
+from ._inplane_motion import MotionMark, MotionTip
 from ._inplane_still import StillLines
 from ._margins import inner_region
 
 __all__ = ["LineTrackerParams", "LineTracker"]
 
-class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
+class LineTracker(LineTip, ConfirmedTrack, MovingTip, TipKalman, Tracker):
     """Whole-frame needle line search with a Kalman filter on the tip (the default in-plane
     tracker; see the module's doc).
 
@@ -137,6 +142,8 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         self._growing = GrowingMark(self.params.growing)
         self._reappearing = GrowingMark(self.params.growing)  # a line after a needle left
         self._still_marks = StillMarks(self.params.growing)  # short new lines that never grew
+        self._change = MotionTip(self.params.motion)  # the echo gained since the frame before
+        self._motion_mark = MotionMark()  # a tip read so, before a track
         self._held_confirmed = False  # this track has been confirmed once
         self._forget()
         self._departed: tuple | None = None  # the confirmed needle last forgotten
@@ -375,6 +382,7 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         if frame.grid.ndim != 2:
             raise ValueError(f"LineTracker needs 2-D images, got a {frame.grid.ndim}-D grid")
         dt = self._update_dt(frame.t)
+        self._change.observe(frame)
         if self._still_search is not None:
             # the search for still lines beside the needle of the frame before, run before
             # this frame's lines are judged: a frame of the whole-frame search does not
@@ -393,14 +401,16 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         if self._is_needle(seg):
             self._growing.clear()
         elif not self._grown(seg, priority):
-            return self._missed(frame, seg, keep=self._out_of_view)
+            return self._moving_tip(frame, seg, wm, inner, priority) or \
+                self._missed(frame, seg, keep=self._out_of_view)
         if new_line:
             reason = self._not_inserted(seg, shares_entry)
             if reason:
                 return self._missed(frame, seg, reason)
         if new_line and self._dir is not None:
             if self._outgrown(seg, frame.t, shares_entry):
-                return self._missed(frame, seg, (
+                return self._moving_tip(frame, seg, wm, inner, priority) or self._missed(
+                    frame, seg, (
                     f"no needle: the {seg.length_mm:.0f} mm line enters where the needle "
                     f"entered, {seg.length_mm - self._longest_mm:.0f} mm longer than the needle "
                     "could have grown since it was seen"))
@@ -423,15 +433,16 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
         reason = self._proven(seg, tip_mm, new_line, frame.t)
         if reason:
             return self._missed(frame, seg, reason)
+        if new_line and self._runs_past_gain(frame, seg, tip_mm, inner):
+            return self._tip_before_line_end(frame, seg, tip_mm, wm, inner, priority)
         if priority(seg):  # it enters through the edge of the view: the insertion's axis
             self._axis = (0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy())
         self._misses = 0
-        measured = tip_mm.copy()
-        accepted, restarted = self._filter(tip_mm)
+        measured, accepted, restarted, moved = self._measure(frame, seg, tip_mm, inner)
         ambiguity = tip_spread_covariance(seg.direction, spread) + \
             self._band_covariance(wm, seg, self._level())
         est = self._estimate(frame, seg, measured, used_tip_map, accepted, restarted,
-                             at_echo_end, spread, ambiguity)
+                             at_echo_end, spread, ambiguity, from_motion=moved)
         if self._since_full == 0:
             # the whole frame was searched: look beside the needle for still tissue lines
             # (at the start of the next frame)
@@ -558,8 +569,8 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
 
     def _estimate(self, frame: Frame, seg: NeedleLine, measured_mm: np.ndarray,
                   used_tip_map: bool, accepted: bool | None, restarted: bool,
-                  at_echo_end: bool, spread_mm: float, ambiguity: np.ndarray
-                  ) -> NeedleEstimate:
+                  at_echo_end: bool, spread_mm: float, ambiguity: np.ndarray,
+                  from_motion: bool = False) -> NeedleEstimate:
         self._dir = seg.direction.copy()
         self._out_of_sight = False
         self._entry_mm = seg.start_mm.copy()
@@ -582,4 +593,5 @@ class LineTracker(LineTip, ConfirmedTrack, TipKalman, Tracker):
                 tip_velocity_mm_s=self._x[2:].copy(), shaft_support=seg.support,
                 segment_length_mm=seg.length_mm, tip_measurement_mm=measured_mm,
                 tip_from_tip_map=used_tip_map, measurement_accepted=accepted,
-                restarted=restarted, tip_at_echo_end=at_echo_end, tip_spread_mm=spread_mm))
+                restarted=restarted, tip_at_echo_end=at_echo_end, tip_spread_mm=spread_mm,
+                tip_from_motion=from_motion))

@@ -47,20 +47,26 @@ class TipKalman:
     def _nominal_R(self) -> np.ndarray:
         return np.eye(2) * self.params.measurement_std_mm ** 2
 
-    def _gate_distance(self, z: np.ndarray) -> float:
-        """Mahalanobis distance of tip measurement ``z`` from the filter's prediction."""
+    def _gate_distance(self, z: np.ndarray, extra: np.ndarray | None = None) -> float:
+        """Mahalanobis distance of tip measurement ``z`` (its noise the nominal one plus
+        ``extra``) from the filter's prediction."""
         y = z - self._x[:2]
-        S = self._P[:2, :2] + self._nominal_R()
+        S = self._P[:2, :2] + self._measurement_R(extra)
         return float(np.sqrt(y @ np.linalg.solve(S, y)))
 
-    def _filter(self, z: np.ndarray) -> tuple[bool | None, bool]:
-        """Update the filter with tip measurement ``z``: whether the gate accepted it (None
+    def _measurement_R(self, extra: np.ndarray | None = None) -> np.ndarray:
+        return self._nominal_R() if extra is None else self._nominal_R() + extra
+
+    def _filter(self, z: np.ndarray, extra: np.ndarray | None = None
+                ) -> tuple[bool | None, bool]:
+        """Update the filter with tip measurement ``z``, whose noise is the nominal one plus
+        ``extra`` (a measurement known to be coarser): whether the gate accepted it (None
         when the filter starts at it) and whether the filter restarted at it."""
         p = self.params
         if self._x is None:
             self._start(z)
             return None, False
-        if self._gate_distance(z) > chi2_gate(2, p.gate_probability):
+        if self._gate_distance(z, extra) > chi2_gate(2, p.gate_probability):
             self._accepted_run = 0
             self._rejects += 1
             if self._rejects >= p.reinit_after_rejects:
@@ -70,7 +76,7 @@ class TipKalman:
         self._rejects = 0
         self._accepted_run += 1
         self._held_confirmed = self._held_confirmed or self._confirmed
-        res = update(self._x, self._P, z, self._nominal_R(), _H)
+        res = update(self._x, self._P, z, self._measurement_R(extra), _H)
         self._innovations.append((np.outer(res.y, res.y), self._P_actual[:2, :2].copy()))
         del self._innovations[:-p.noise_window_frames]
         J = np.eye(4) - res.K @ _H  # the nominal gain, applied to the actual errors

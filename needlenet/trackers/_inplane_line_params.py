@@ -9,6 +9,7 @@ from ._base import GAUGE_RADII_MM, radius_variance
 from ._inplane_echo_end import EchoEndParams
 from ._inplane_growing import GrowingMarkParams
 from ._inplane_line_echo import EchoTestParams
+from ._inplane_motion import MotionTipParams
 from ._inplane_still import StillLineParams
 
 __all__ = ["LineTrackerParams", "MAX_DISTANCE_MM"]
@@ -82,6 +83,8 @@ class LineTrackerParams:
     taken for a needle coming in once it has grown where it enters, and a new track on a line
     shorter than ``settled_length_mm`` must grow within ``growing.prove_within_s`` to stay
     (:meth:`~._inplane_line_confirmed.ConfirmedTrack._proven`).
+    ``motion``: where the search offers no needle line, the tip is read where echo was gained
+    since the frame before (:mod:`._inplane_line_motion`).
     ``mask_edge_mm``: evidence this close to the edge of a capture margin or sector mask is
     not read (the mask's step is no echo; the shipped in-plane model marks it up to 1.5 mm
     in, measured on needle-free synth frames with sector masks and margins)."""
@@ -91,6 +94,7 @@ class LineTrackerParams:
     echo_end: EchoEndParams = field(default_factory=EchoEndParams)
     still: StillLineParams = field(default_factory=StillLineParams)
     growing: GrowingMarkParams = field(default_factory=GrowingMarkParams)
+    motion: MotionTipParams = field(default_factory=MotionTipParams)
     min_length_mm: float = 5.0
     learned_level: float = 0.5
     learned_extend_level: float = 0.25

@@ -2,6 +2,7 @@
 
 import json
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -283,3 +284,18 @@ def test_track_seed_makes_volume_runs_repeatable(tmp_path):
                      "3", "--json", str(out), "--quiet"]) == 0
         tips.append([fr["tip_mm"] for fr in json.loads(out.read_text())["frames"]])
     assert tips[0] == tips[1]
+
+
+def test_the_summary_counts_tips_read_from_the_echo_gained(tmp_path, capsys):
+    # PyMUST's needle beside an interface, merged with it on the map: the frames whose tip
+    # was read where the advancing needle gained echo are counted, as each frame says
+    pytest.importorskip("onnxruntime")
+    f = Path(__file__).resolve().parents[2] / "needlenet" / "data" / "validation" / \
+        "val_lin_right_side_20_interface.npz"
+    out = tmp_path / "m.json"
+    assert main(["track", str(f), "--json", str(out), "--quiet"]) == 0
+    capsys.readouterr()
+    res = json.loads(out.read_text())
+    moved = sum(bool(fr.get("tip_from_motion")) for fr in res["frames"])
+    assert moved >= 5
+    assert res["summary"]["frames_tip_from_motion"] == moved
