@@ -102,9 +102,14 @@ class MotionTip:
 
     def observe(self, frame: Frame) -> None:
         """This frame becomes the one the next frame is compared with; call once per frame,
-        before reading it."""
+        before reading it. A frame identical to the one before (a screen capture faster
+        than the scanner repeats frames) changes nothing: the change read is the last one."""
+        image = np.asarray(frame.image)
+        if self._cur is not None and image.shape == self._cur.shape and \
+                np.array_equal(image, self._cur):
+            return
         self._prev = self._cur
-        self._cur = np.array(frame.image, copy=True)  # a reader may reuse its buffer
+        self._cur = np.array(image, copy=True)  # a reader may reuse its buffer
         self._change = None
         if self._prev is not None and self._prev.shape != self._cur.shape:
             self._prev = None

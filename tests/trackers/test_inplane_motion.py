@@ -70,6 +70,17 @@ def test_a_still_needle_a_needle_gone_and_the_first_frame_read_nothing():
     assert _peak([_with_needle(bg, 10.0), bg]) is None  # echo lost, none gained
 
 
+def test_a_repeated_frame_keeps_the_change_read_before_it():
+    """A screen capture faster than the scanner repeats frames: the tip read between the last
+    two different frames is read again on the repeat."""
+    bg = _speckle(5)
+    first, second = _with_needle(bg, 10.0), _with_needle(bg, 12.0)
+    a = _peak([first, second])
+    b = _peak([first, second, second])
+    assert a is not None and b is not None
+    assert np.allclose(a.point_mm, b.point_mm)
+
+
 def test_a_moved_probe_reads_nothing():
     """The probe moved by 0.4 mm: the speckle and the needle's whole echo change, and no short
     run of gained echo stands out."""
