@@ -31,6 +31,7 @@ from ._base import NeedleEstimate
 from ._inplane_geometry import distance_to_edge, entry_to_tip
 from ._inplane_line_params import MAX_DISTANCE_MM
 from ._inplane_line_tip import tip_spread_covariance
+from ._inplane_motion import MotionPeak
 
 __all__ = ["MovingTip"]
 
@@ -54,8 +55,7 @@ class MovingTip:
                 return None
             line = entry_to_tip(shown, frame, p.orientation_min_angle_deg, inner)
             entry, d = line.start_mm, line.direction
-        room = distance_to_edge(inner, frame, entry, d, max_mm=2 * MAX_DISTANCE_MM)
-        peak = self._change.peak_on(frame, inner, entry, d, room, room)
+        peak = self._gain_on(frame, inner, entry, d)
         if peak is None:
             self._motion_mark.clear()  # a tip is seen advancing on consecutive frames
             return None
@@ -92,8 +92,7 @@ class MovingTip:
         than the tip map's window behind the end plus the search's bridged gap; else 0."""
         p = self.params
         d = seg.direction
-        room = distance_to_edge(inner, frame, seg.start_mm, d, max_mm=2 * MAX_DISTANCE_MM)
-        peak = self._change.peak_on(frame, inner, seg.start_mm, d, room, room)
+        peak = self._gain_on(frame, inner, seg.start_mm, d)
         if peak is None:
             return 0.0
         past = float((tip_mm - seg.start_mm) @ d) - peak.along_mm
@@ -120,8 +119,7 @@ class MovingTip:
         if accepted is not False or restarted:
             return tip_mm.copy(), accepted, restarted, False
         d = seg.direction
-        room = distance_to_edge(inner, frame, seg.start_mm, d, max_mm=2 * MAX_DISTANCE_MM)
-        peak = self._change.peak_on(frame, inner, seg.start_mm, d, room, room)
+        peak = self._gain_on(frame, inner, seg.start_mm, d)
         if peak is None:
             return tip_mm.copy(), accepted, restarted, False
         spread = self._run_covariance(d, peak)
@@ -132,16 +130,23 @@ class MovingTip:
         return gained, accepted, restarted, True
 
     @staticmethod
-    def _run_covariance(direction: np.ndarray, peak) -> np.ndarray:
+    def _run_covariance(direction: np.ndarray, peak: MotionPeak) -> np.ndarray:
         """The tip read from the gain lies anywhere along its changed run: a variance of
         the run's length squared over 12 along the line."""
         return np.outer(direction, direction) * peak.run_mm ** 2 / 12.0
 
-    def _gain_tip(self, peak, direction: np.ndarray) -> np.ndarray:
+    def _gain_tip(self, peak: MotionPeak, direction: np.ndarray) -> np.ndarray:
         """The tip on the centre line: the gain read is the echo of the wall facing the
         probe, moved by ``needle_radius_mm`` into the tissue (as the classical echo is)."""
         normal = np.array([-direction[1], direction[0]])
         if normal[1] < 0:
             normal = -normal
         return peak.point_mm + self.params.needle_radius_mm * normal
+
+    def _gain_on(self, frame: Frame, inner: np.ndarray, entry: np.ndarray,
+                 direction: np.ndarray) -> MotionPeak | None:
+        """The advancing tip read on the line from ``entry`` along ``direction`` to the edge
+        of the view (:meth:`~._inplane_motion.MotionTip.peak_on`; None: none)."""
+        room = distance_to_edge(inner, frame, entry, direction, max_mm=2 * MAX_DISTANCE_MM)
+        return self._change.peak_on(frame, inner, entry, direction, room, room)
 
