@@ -17,7 +17,10 @@ tip is the strongest gain on the line, taken only where it stands out of the cha
 whole imaged region (``min_z`` robust standard deviations above the median of the region's
 absolute change, smoothed alike; its median absolute deviation, at least one grey level, the
 step of 8-bit images), and where the run about it is short (``max_run_mm``: the bevel's new
-place with its point spread, a few millimetres at an insertion's speed). A probe moved by
+place with its point spread, a few millimetres at an insertion's speed), and only while the
+shaft behind the run stays: where the line behind it lost echo (the median along it of the
+loss, smoothed alike, reaching the same ``min_z``), a needle left the plane (tissue its
+shadow hid gains echo) or the probe moved, and no tip advanced. A probe moved by
 hand, or breathing, changes the whole frame: the median and spread rise with it and no short
 run stands out; along an interface that moves across itself the gain runs the whole line.
 Then nothing is read.
@@ -116,9 +119,9 @@ class MotionTip:
             self._prev = None
 
     def _region_change(self, frame: Frame, inner: np.ndarray) -> tuple | None:
-        """(the smoothed gain, the median and robust spread of the smoothed absolute change
-        over ``inner``, the factors (rows, columns) from the frame's pixels to the gain's),
-        computed once per frame on pixels no finer than half ``smooth_mm``."""
+        """(the smoothed gain and loss, the median and robust spread of the smoothed absolute
+        change over ``inner``, the factors (rows, columns) from the frame's pixels to the
+        gain's), computed once per frame on pixels no finer than half ``smooth_mm``."""
         if self._prev is None:
             return None
         if self._change is None:
@@ -139,14 +142,15 @@ class MotionTip:
                                                            strict=True))
             signed = cur - prev
             gained = cv2.GaussianBlur(np.maximum(signed, 0.0), (0, 0), sigmaX=sx, sigmaY=sz)
-            vals = cv2.GaussianBlur(np.abs(signed), (0, 0), sigmaX=sx, sigmaY=sz)[keep > 0]
+            lost = cv2.GaussianBlur(np.maximum(-signed, 0.0), (0, 0), sigmaX=sx, sigmaY=sz)
+            vals = (gained + lost)[keep > 0]  # the smoothed absolute change
             vals = vals[::max(1, vals.size // _STAT_SAMPLES)]
             if vals.size == 0:
-                self._change = (gained, 0.0, np.inf, factors)
+                self._change = (gained, lost, 0.0, np.inf, factors)
             else:
                 med = float(np.median(vals))
                 scale = max(1.4826 * float(np.median(np.abs(vals - med))), 1.0)
-                self._change = (gained, med, scale, factors)
+                self._change = (gained, lost, med, scale, factors)
         return self._change
 
     def peak_on(self, frame: Frame, inner: np.ndarray, start_mm: np.ndarray,
@@ -158,7 +162,7 @@ class MotionTip:
         change = self._region_change(frame, inner)
         if change is None or not length_mm > 0:
             return None
-        d, med, scale, (fr, fc) = change
+        gained, lost, med, scale, (fr, fc) = change
         p = self.params
         s = np.arange(0.0, length_mm + 1e-9, p.step_mm)
         c = np.arange(-p.band_mm, p.band_mm + 1e-9, p.step_mm)
@@ -166,8 +170,8 @@ class MotionTip:
         n = np.array([-u[1], u[0]])
         pts = start_mm[None, None] + s[:, None, None] * u + c[None, :, None] * n
         idx = frame.grid.points_to_index(pts.reshape(-1, 2))  # pixel centres kept
-        v = remap_points(d, (idx[:, 1] + 0.5) * fc - 0.5,
-                         (idx[:, 0] + 0.5) * fr - 0.5).reshape(len(s), len(c))
+        cols, rows = (idx[:, 1] + 0.5) * fc - 0.5, (idx[:, 0] + 0.5) * fr - 0.5
+        v = remap_points(gained, cols, rows).reshape(len(s), len(c))
         i, j = np.unravel_index(int(np.argmax(v)), v.shape)
         peak = float(v[i, j])
         z = (peak - med) / scale
@@ -180,6 +184,11 @@ class MotionTip:
         b = i + cold_after[0] if cold_after.size else len(s) - 1
         run = (b - a + 1) * p.step_mm
         if run > p.max_run_mm:
+            return None
+        # the shaft behind the tip stays: where it lost its echo along the line (a needle that
+        # leaves the plane, or a probe moved), no tip advanced
+        behind = remap_points(lost, cols, rows).reshape(len(s), len(c))[:a].max(axis=1, initial=0)
+        if behind.size and np.median(behind) >= med + p.min_z * scale:
             return None
         # the shallowest gain at half the peak's across the line there: the needle's own
         # echo comes first, its reverberations follow deeper

@@ -81,6 +81,18 @@ def test_a_repeated_frame_keeps_the_change_read_before_it():
     assert np.allclose(a.point_mm, b.point_mm)
 
 
+def test_a_needle_that_leaves_the_plane_reads_nothing():
+    """The shaft's echo lost along the line while echo is gained where its tip was (tissue its
+    bevel's shadow hid): no tip advanced."""
+    bg = _speckle(6)
+    revealed = bg.copy()
+    tip = (ENTRY + 12.5 * DIRECTION) / SPACING
+    cv2.circle(revealed, tuple(int(round(v)) for v in tip), 6, 250, -1)
+    assert _peak([_with_needle(bg, 10.0), revealed]) is None
+    # the control: the same gain with the shaft still there is read
+    assert _peak([_with_needle(bg, 10.0), _with_needle(revealed, 10.0)]) is not None
+
+
 def test_a_moved_probe_reads_nothing():
     """The probe moved by 0.4 mm: the speckle and the needle's whole echo change, and no short
     run of gained echo stands out."""
