@@ -20,7 +20,11 @@ Per method and features, over the worlds:
 - ``recording_false_tracking``: frames reported ``tracking`` on recordings that hold no needle
   from their first frame (synth worlds ``FREE_WORLDS``, ``FREE_FRAMES`` frames each, the
   default inhomogeneous tissue with its needle-like lines): the gap protocol's needle was
-  tracked before the gap, and a tracker may hold back from tissue only then.
+  tracked before the gap, and a tracker may hold back from tissue only then;
+- ``breathing_false_tracking``: the same on those worlds' recordings with the tissue moving
+  as a patient's breathing moves it under a probe held still (rigid, ``BREATHING_MM``
+  amplitude, periods 3-5 s: synth's ``tissue_motion_mm``), so that no frame repeats the one
+  before it.
 
 Headline: ``false_tracking_fraction`` (lower is better).
 """
@@ -41,6 +45,7 @@ REACQUIRE_FRAMES = 10
 # consecutive worlds, none left out
 SEEDS = {"demo": (11,), "quick": (11, 12, 13), "full": tuple(range(11, 19))}
 FREE_FRAMES = 30
+BREATHING_MM = 1.0
 FREE_WORLDS = {"demo": (100,), "quick": tuple(range(100, 110)), "full": tuple(range(100, 130))}
 QUICK_METHODS = ("line", "kf+f", "df")
 
@@ -100,7 +105,9 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None) -> 
         log(f"  honesty: world {w} ({FRAMES} frames, needle-free {GAP[0]}-{GAP[1] - 1})")
         seqs[w] = protocol_sequence(w)
     free = {w: free_recording(w) for w in FREE_WORLDS[tier]}
-    log(f"  honesty: {len(free)} recordings without a needle ({FREE_FRAMES} frames each)")
+    breathing = {w: free_recording(w, BREATHING_MM) for w in FREE_WORLDS[tier]}
+    log(f"  honesty: {len(free)} recordings without a needle ({FREE_FRAMES} frames each), "
+        "still and breathing")
     for method in _methods(tier):
         for kind in kinds:
             per_world = []
@@ -114,18 +121,24 @@ def run(quick: bool = False, seed: int = 0, log=print, rows=None, tier=None) -> 
                 tracking_frames(make_tracker("inplane", method, kind, seed=seed + w).run(f))
                 for w, f in free.items())
             r["recording_frames"] = FREE_FRAMES * len(free)
+            r["breathing_false_tracking"] = sum(
+                tracking_frames(make_tracker("inplane", method, kind, seed=seed + w).run(f))
+                for w, f in breathing.items())
             log(f"  honesty {method} {kind}: needle-free tracking {r['false_tracking']}/"
                 f"{r['needle_free_frames']}, re-acquired {r['reacquired']}/{len(worlds)}, "
                 f"needle-free recordings {r['recording_false_tracking']}/"
+                f"{r['recording_frames']}, breathing {r['breathing_false_tracking']}/"
                 f"{r['recording_frames']}")
     return {"rows": rows}
 
 
-def free_recording(world: int):
-    """World ``world`` without a needle, ``FREE_FRAMES`` frames from its first."""
+def free_recording(world: int, breathing_mm: float = 0.0):
+    """World ``world`` without a needle, ``FREE_FRAMES`` frames from its first; its tissue
+    moving by ``breathing_mm`` (synth's breathing-like ``tissue_motion_mm``)."""
     import synth
 
-    return synth.generate("inplane", seed=world, frames=FREE_FRAMES, needle_free=True)
+    return synth.generate("inplane", seed=world, frames=FREE_FRAMES, needle_free=True,
+                          tissue_motion_mm=breathing_mm)
 
 
 def tracking_frames(estimates: list) -> int:
@@ -163,10 +176,11 @@ def markdown(result: dict, machine: dict) -> str:
              "world (`-`: not within the run; `*`: the needle was not held before the gap "
              "either). Needle-free recordings: synth worlds "
              f"{_span(rows[0].get('recording_worlds', [])) if rows else '-'} without a "
-             f"needle from the first frame ({FREE_FRAMES} frames each), frames `tracking`.", "",
+             f"needle from the first frame ({FREE_FRAMES} frames each), frames `tracking`, the "
+             f"tissue still and breathing ({BREATHING_MM:g} mm).", "",
              "| method | features | needle-free `tracking` | re-acquired | frames to re-acquire "
-             "| within 2 mm before / after | needle-free recordings `tracking` |",
-             "|---|---|---|---|---|---|---|"]
+             "| within 2 mm before / after | needle-free recordings `tracking` | breathing |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         per = ", ".join(("-" if f is None else str(f)) + ("" if h else "*")
                         for f, h in zip(r["reacquire_frames"], r["held_before"], strict=True))
@@ -175,7 +189,8 @@ def markdown(result: dict, machine: dict) -> str:
             f"{r['needle_free_frames']} ({100 * r['false_tracking_fraction']:.1f}%) | "
             f"{r['reacquired']} / {len(r['worlds'])} | {per} | {r['within_before']} / "
             f"{r['needle_frames_before']}, {r['within_after']} / {r['needle_frames_after']} | "
-            f"{r.get('recording_false_tracking', '-')} / {r.get('recording_frames', '-')} |")
+            f"{r.get('recording_false_tracking', '-')} / {r.get('recording_frames', '-')} | "
+            f"{r.get('breathing_false_tracking', '-')} / {r.get('recording_frames', '-')} |")
     return "\n".join(lines)
 
 

@@ -85,4 +85,7 @@ def test_demo_tier(tmp_path):
     # world 100 without a needle from its first frame: nothing `tracking` on it
     assert line["recording_false_tracking"] == 0 and line["recording_frames"] == 30
     assert "needle-free recordings `tracking`" in res["markdown"]
+    # and with its tissue breathing under a still probe
+    assert line["breathing_false_tracking"] == 0
+    assert "breathing" in res["markdown"]
 
