@@ -143,7 +143,7 @@ class LineTracker(LineTip, ConfirmedTrack, MovingTip, TipKalman, Tracker):
         self._reappearing = GrowingMark(self.params.growing)  # a line after a needle left
         self._still_marks = StillMarks(self.params.growing)  # short new lines that never grew
         self._change = MotionTip(self.params.motion)  # the echo gained since the frame before
-        self._motion_mark = MotionMark()  # a tip read so, before a track
+        self._motion_mark = MotionMark()  # the tip read so on the frame before
         self._held_confirmed = False  # this track has been confirmed once
         self._forget()
         self._departed: tuple | None = None  # the confirmed needle last forgotten
