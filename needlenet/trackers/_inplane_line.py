@@ -433,8 +433,9 @@ class LineTracker(LineTip, ConfirmedTrack, MovingTip, TipKalman, Tracker):
         reason = self._proven(seg, tip_mm, new_line, frame.t)
         if reason:
             return self._missed(frame, seg, reason)
-        if new_line and self._runs_past_gain(frame, seg, tip_mm, inner):
-            return self._tip_before_line_end(frame, seg, tip_mm, wm, inner, priority)
+        past = self._runs_past_gain(frame, seg, tip_mm, inner) if new_line else 0.0
+        if past:
+            return self._tip_before_line_end(frame, seg, past, wm, inner, priority)
         if priority(seg):  # it enters through the edge of the view: the insertion's axis
             self._axis = (0.5 * (seg.start_mm + seg.end_mm), seg.direction.copy())
         self._misses = 0

@@ -98,11 +98,11 @@ class MovingTip:
         past = float((tip_mm - seg.start_mm) @ d) - peak.along_mm
         return past if past > p.tip_window_mm[0] + p.search.gap_mm else 0.0
 
-    def _tip_before_line_end(self, frame: Frame, seg: NeedleLine, tip_mm: np.ndarray,
+    def _tip_before_line_end(self, frame: Frame, seg: NeedleLine, past: float,
                              wm: WorkingMap, inner: np.ndarray, priority) -> NeedleEstimate:
-        """A new track's line that runs on past the advancing tip read from the echo gained
-        on it: the estimate at that tip once seen advancing, else the frame is missed."""
-        past = self._runs_past_gain(frame, seg, tip_mm, inner)
+        """A new track's line that runs ``past`` mm on past the advancing tip read from the
+        echo gained on it: the estimate at that tip once seen advancing, else the frame is
+        missed."""
         return self._moving_tip(frame, NeedleLine(False, refused=seg), wm, inner, priority) or \
             self._missed(frame, seg, (
                 f"no needle: the {seg.length_mm:.0f} mm line's tip lies {past:.0f} mm past "
@@ -148,5 +148,5 @@ class MovingTip:
         """The advancing tip read on the line from ``entry`` along ``direction`` to the edge
         of the view (:meth:`~._inplane_motion.MotionTip.peak_on`; None: none)."""
         room = distance_to_edge(inner, frame, entry, direction, max_mm=2 * MAX_DISTANCE_MM)
-        return self._change.peak_on(frame, inner, entry, direction, room, room)
+        return self._change.peak_on(frame, inner, entry, direction, room)
 

@@ -102,7 +102,7 @@ class MotionTip:
     def reset(self) -> None:
         self._prev: np.ndarray | None = None
         self._cur: np.ndarray | None = None
-        self._change: tuple | None = None  # (smoothed change, median, scale) of this frame
+        self._change: tuple | None = None  # this frame's, see _region_change
 
     def observe(self, frame: Frame) -> None:
         """This frame becomes the one the next frame is compared with; call once per frame,
@@ -154,17 +154,17 @@ class MotionTip:
         return self._change
 
     def peak_on(self, frame: Frame, inner: np.ndarray, start_mm: np.ndarray,
-                direction: np.ndarray, length_mm: float, room_mm: float) -> MotionPeak | None:
-        """The tip's change on the line from ``start_mm`` along the unit ``direction`` for
-        ``length_mm``, or None where no short run of change stands out there (or there is no
-        frame before, or the peak lies within ``edge_room_mm`` of ``room_mm``, the distance
-        from ``start_mm`` to the edge of the view along the line)."""
+                direction: np.ndarray, room_mm: float) -> MotionPeak | None:
+        """The tip's change on the line from ``start_mm`` along the unit ``direction`` to the
+        edge of the view, ``room_mm`` further on; None where no short run of change stands
+        out there (or there is no frame before, or the peak lies within ``edge_room_mm`` of
+        the edge)."""
         change = self._region_change(frame, inner)
-        if change is None or not length_mm > 0:
+        if change is None or not room_mm > 0:
             return None
         gained, lost, med, scale, (fr, fc) = change
         p = self.params
-        s = np.arange(0.0, length_mm + 1e-9, p.step_mm)
+        s = np.arange(0.0, room_mm + 1e-9, p.step_mm)
         c = np.arange(-p.band_mm, p.band_mm + 1e-9, p.step_mm)
         u = np.asarray(direction, float)
         n = np.array([-u[1], u[0]])
@@ -187,9 +187,11 @@ class MotionTip:
             return None
         # the shaft behind the tip stays: where it lost its echo along the line (a needle that
         # leaves the plane, or a probe moved), no tip advanced
-        behind = remap_points(lost, cols, rows).reshape(len(s), len(c))[:a].max(axis=1, initial=0)
-        if behind.size and np.median(behind) >= med + p.min_z * scale:
-            return None
+        if a > 0:
+            n_behind = a * len(c)  # the samples before the run, row-major
+            behind = remap_points(lost, cols[:n_behind], rows[:n_behind]).reshape(a, len(c))
+            if np.median(behind.max(axis=1)) >= med + p.min_z * scale:
+                return None
         # the shallowest gain at half the peak's across the line there: the needle's own
         # echo comes first, its reverberations follow deeper
         deeper = n[1] >= 0

@@ -49,7 +49,7 @@ def _peak(images):
     for i, im in enumerate(images):
         f = _frame(im, i)
         m.observe(f)
-        peak = m.peak_on(f, inner, ENTRY, DIRECTION, 30.0, 30.0)
+        peak = m.peak_on(f, inner, ENTRY, DIRECTION, 30.0)
     return peak
 
 
@@ -110,7 +110,7 @@ def test_a_tip_near_the_edge_of_the_view_is_not_read():
         f = _frame(_with_needle(bg, length), i)
         m.observe(f)
     # the view ends 13 mm along the line: the tip at 12 mm is within edge_room_mm of it
-    assert m.peak_on(f, inner, ENTRY, DIRECTION, 13.0, 13.0) is None
+    assert m.peak_on(f, inner, ENTRY, DIRECTION, 13.0) is None
 
 
 def test_a_frame_of_another_size_starts_afresh():
@@ -118,7 +118,7 @@ def test_a_frame_of_another_size_starts_afresh():
     m.observe(_frame(_speckle(4), 0))
     f = _frame(_with_needle(_speckle(4, (200, 200)), 8.0), 1)
     m.observe(f)
-    assert m.peak_on(f, np.ones((200, 200), bool), ENTRY, DIRECTION, 20.0, 20.0) is None
+    assert m.peak_on(f, np.ones((200, 200), bool), ENTRY, DIRECTION, 20.0) is None
 
 
 def test_a_mark_is_taken_once_it_advances_along_its_line():
@@ -168,7 +168,7 @@ def test_breathing_tissue_beside_an_interface_reads_no_tip():
         for a in (20.0, 35.0, 50.0):
             d = np.array([-np.cos(np.deg2rad(a)), np.sin(np.deg2rad(a))])
             for s in starts:
-                reads += m.peak_on(f, inner, s, d, 30.0, 30.0) is not None
+                reads += m.peak_on(f, inner, s, d, 30.0) is not None
     assert reads == 0
 
 
