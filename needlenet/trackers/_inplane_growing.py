@@ -26,7 +26,7 @@ import numpy as np
 
 from ..backends import NeedleLine
 
-__all__ = ["GrowingMarkParams", "GrowingMark", "StillMarks"]
+__all__ = ["GrowingMarkParams", "GrowingMark", "StillMarks", "runs_along"]
 
 
 @dataclass(frozen=True)
@@ -130,8 +130,15 @@ class StillMarks:
         it, lies beyond the furthest of the still mark it runs along, along ``seg``; None when
         it runs along none."""
         for middle, direction, far_end, far_tip in self._marks:
-            if abs(float(direction @ seg.direction)) >= np.cos(np.deg2rad(_SAME_LINE_DEG)) and \
-                    _passes_near(seg, middle, self.params.near_mm):
+            if runs_along(seg, middle, direction, self.params.near_mm):
                 return max(float((np.asarray(seg.end_mm, float) - far_end) @ seg.direction),
                            float((np.asarray(tip_mm, float) - far_tip) @ seg.direction))
         return None
+
+
+def runs_along(seg: NeedleLine, middle: np.ndarray, direction: np.ndarray,
+               near_mm: float) -> bool:
+    """Whether ``seg`` is the line through ``middle`` along ``direction`` seen again: it
+    passes within ``near_mm`` of the middle, within ``_SAME_LINE_DEG`` of the direction."""
+    return abs(float(np.asarray(direction, float) @ seg.direction)) >= \
+        np.cos(np.deg2rad(_SAME_LINE_DEG)) and _passes_near(seg, middle, near_mm)

@@ -88,7 +88,7 @@ from ._inplane_geometry import (
     on_line,
 )
 from ._inplane_growing import GrowingMark, StillMarks
-from ._inplane_line_confirmed import ConfirmedTrack
+from ._inplane_line_confirmed import ConfirmedTrack, PausedProbation
 from ._inplane_line_echo import echo_along
 from ._inplane_line_filter import TipKalman
 from ._inplane_line_motion import MovingTip
@@ -145,6 +145,7 @@ class LineTracker(LineTip, ConfirmedTrack, MovingTip, TipKalman, Tracker):
         self._change = MotionTip(self.params.motion)  # the echo gained since the frame before
         self._motion_mark = MotionMark()  # the tip read so on the frame before
         self._held_confirmed = False  # this track has been confirmed once
+        self._paused = PausedProbation(self.params.growing.near_mm)  # short tracks lost early
         self._forget()
         self._departed: tuple | None = None  # the confirmed needle last forgotten
 
@@ -163,7 +164,7 @@ class LineTracker(LineTip, ConfirmedTrack, MovingTip, TipKalman, Tracker):
         self._out_of_sight = False  # the tracked needle was last seen running out of view
         self._since_full = 0
         self._held_confirmed = False  # this track has been confirmed once
-        self._unproven = None  # a new track on a short line, until it grows
+        self._pause_probation()
 
     @property
     def dt_s(self) -> float:

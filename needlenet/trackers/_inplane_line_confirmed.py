@@ -13,12 +13,15 @@ import numpy as np
 
 from ..backends import NeedleLine, chi2_gate
 from ._inplane_geometry import distance_to_edge, on_line
+from ._inplane_growing import runs_along
 
-__all__ = ["ConfirmedTrack"]
+__all__ = ["ConfirmedTrack", "PausedProbation"]
 
 
 class ConfirmedTrack:
     """What a confirmed track rules out (see the module's doc)."""
+
+    _unproven: _Unproven | None = None  # a new track on a short line, until it grows
 
     @property
     def _confirmed(self) -> bool:
@@ -115,6 +118,12 @@ class ConfirmedTrack:
         return (f"no needle: the {seg.length_mm:.0f} mm line appeared elsewhere when the needle "
                 "tracked was lost; it is taken once it grows where it enters, as an insertion")
 
+    def _pause_probation(self) -> None:
+        """The track is forgotten: a short one still on probation keeps it, paused."""
+        if self._unproven is not None:
+            self._paused.pause(self._unproven)
+        self._unproven = None
+
     def _proven(self, seg: NeedleLine, tip_mm: np.ndarray, new_line: bool, t: float) -> str:
         """Why ``seg`` (oriented entry to tip), its tip measured at ``tip_mm``, is not (or no
         longer) taken for a needle: '' when it may be. A new learned track on a segment
@@ -124,7 +133,9 @@ class ConfirmedTrack:
         ``growing.prove_within_s`` after it was first taken, and at least
         ``confirm_after_frames`` frame periods, is dropped as a still tissue line; a new line
         along it is taken once its far end or tip lies ``growing.growth_mm`` beyond the
-        furthest the still line's reached, and is then a needle that has grown. Either
+        furthest the still line's reached, and is then a needle that has grown. A short track
+        lost before either keeps its probation (:class:`PausedProbation`): a new track along
+        it goes on from its first sighting. Either
         measure alone fails somewhere: the segment of a needle coming in bright at a corner
         runs millimetres past its tip and may keep its far end while the tip advances, and
         beside an interface it may slide along; the tip measured on a still line may jump by
@@ -143,9 +154,13 @@ class ConfirmedTrack:
             if beyond is not None and beyond < g:
                 return (f"no needle: the {seg.length_mm:.0f} mm line lies on a short line that "
                         "stood still; it is taken once it grows, as an insertion")
-            if beyond is None and seg.length_mm < p.settled_length_mm:
-                self._unproven = _Unproven(seg.end_mm, tip_mm, t)
-            return ""
+            if beyond is not None:
+                return ""  # grown past the still line: an insertion
+            self._unproven = self._paused.resume(seg)
+            if self._unproven is None:
+                if seg.length_mm < p.settled_length_mm:
+                    self._unproven = _Unproven(seg, tip_mm, t)
+                return ""
         u = self._unproven
         if u is None:
             return ""
@@ -162,18 +177,51 @@ class ConfirmedTrack:
             return ""
         self._still_marks.add(seg, u.end0_mm + max(u.far_end_mm, 0.0) * seg.direction,
                               u.tip0_mm + max(u.far_tip_mm, 0.0) * seg.direction)
+        self._unproven = None  # judged: not kept on probation by _forget
         self._forget()
         return (f"no needle: the {seg.length_mm:.0f} mm line has not grown in "
                 f"{t - u.t0:.2f} s: a still tissue line, not an insertion")
 
 
 class _Unproven:
-    """A new track on a short segment, until it grows: its first far end and tip, and the
-    furthest each has advanced since."""
+    """A new track on a short segment, until it grows: where its line lies (its first
+    segment's middle and direction), its first far end and tip, and the furthest each has
+    advanced since."""
 
-    def __init__(self, end_mm: np.ndarray, tip_mm: np.ndarray, t: float):
+    def __init__(self, seg: NeedleLine, tip_mm: np.ndarray, t: float):
         self.t0 = t
-        self.end0_mm = np.asarray(end_mm, float).copy()
+        self.middle_mm = 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
+        self.direction = np.asarray(seg.direction, float).copy()
+        self.end0_mm = np.asarray(seg.end_mm, float).copy()
         self.tip0_mm = np.asarray(tip_mm, float).copy()
         self.far_end_mm = self.far_tip_mm = 0.0
         self.tip_grown = False  # the tip was growth_mm on on the frame before
+
+
+class PausedProbation:
+    """Short new tracks lost before they grew or ran out their time: a line whose map
+    flickers about the least segment length is lost and taken again every few frames, and
+    each new track would start its probation anew. A new track along one of them (the
+    :class:`StillMarks` rule) goes on with its probation instead, from its first sighting."""
+
+    def __init__(self, near_mm: float):
+        self.near_mm = near_mm
+        self._held: list[_Unproven] = []
+
+    def pause(self, u: _Unproven) -> None:
+        if len(self._held) >= _MAX_PAUSED:
+            del self._held[0]  # the oldest goes first
+        self._held.append(u)
+
+    def resume(self, seg: NeedleLine) -> _Unproven | None:
+        """The paused probation ``seg`` runs along, taken out of the pause (its tip's
+        two-frame count starts again); None when there is none."""
+        for i, u in enumerate(self._held):
+            if runs_along(seg, u.middle_mm, u.direction, self.near_mm):
+                del self._held[i]
+                u.tip_grown = False
+                return u
+        return None
+
+
+_MAX_PAUSED = 32  # probations kept paused: a bound on memory, not a setting

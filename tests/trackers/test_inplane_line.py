@@ -458,6 +458,20 @@ def test_a_short_new_line_must_grow_to_stay_a_needle(lengths, tracked):
         assert max(err) < 0.6, err
 
 
+def test_a_flickering_still_line_keeps_its_probation():
+    """At 20 frames/s: a still 6 mm line whose map drops below a needle's length for longer
+    than the track is held (``forget_after_frames``) and comes back, again and again, is
+    not a new insertion each time: it is tracked only within ``prove_within_s`` (0.5 s) of
+    its first sighting, then dropped for good."""
+    shown = [True, True] + [False] * 6
+    lengths = [6.0 if s else 1.0 for s in shown * 4]  # 1.6 s: on two frames in eight
+    est = _track_marks(lengths, 0.05, seed=13)
+    tracking = [i for i, e in enumerate(est) if e.status == Status.TRACKING]
+    assert tracking and max(tracking) * 0.05 < 0.5, tracking
+    assert "not an insertion" in est[16].reason, [e.reason for e in est]
+    assert all("stood still" in est[i].reason for i in (17, 24, 25)), [e.reason for e in est]
+
+
 def test_a_still_needle_like_tissue_line_is_not_tracked_for_long():
     """Synth world 113 without a needle (20 frames/s): a faint 5.6 mm line entering under the
     probe face (one of the background's needle-like distractors) passes every test of a
