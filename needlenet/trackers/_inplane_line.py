@@ -14,7 +14,8 @@ millimetre in half a second (``growing.prove_within_s``) is a still tissue line,
 not taken again until it grows (a needle-like line in tissue where no needle is, a few
 millimetres under the skin, is otherwise tracked for as long as it is in view). The tip is the
 segment's end away from the entry, refined by the tip map where the source has one (with
-classical features: moved on to where the echo along the line ends) and bounded by where the
+classical features: moved on to where the echo along the line ends; on a new learned
+track's first frame not past the segment's end) and bounded by where the
 needle's echo ends in the image (the streak of unfocused imaging past a tip looks like shaft;
 :mod:`._inplane_line_tip`), and a constant-velocity Kalman filter on the tip's (x, z) smooths
 it between frames. A segment that
@@ -70,23 +71,11 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from ..backends import (
-    NeedleLine,
-    WorkingMap,
-    chi2_gate,
-    find_needle_line,
-    working_map,
-)
+from ..backends import NeedleLine, WorkingMap, chi2_gate, find_needle_line, working_map
 from ..features import FeatureSource, Frame, line_contrast
 from ._base import NeedleEstimate, Status, Tracker
 from ._details import LineDetails
-from ._inplane_geometry import (
-    AROUND,
-    behind_on_line,
-    distance_to_edge,
-    entry_to_tip,
-    on_line,
-)
+from ._inplane_geometry import AROUND, behind_on_line, distance_to_edge, entry_to_tip, on_line
 from ._inplane_growing import GrowingMark, StillMarks
 from ._inplane_line_confirmed import ConfirmedTrack, PausedProbation
 from ._inplane_line_echo import echo_along
@@ -429,8 +418,12 @@ class LineTracker(LineTip, ConfirmedTrack, MovingTip, TipKalman, Tracker):
             return self._missed(frame, seg, (
                 f"no needle tip in view: the {seg.length_mm:.0f} mm needle's weaker "
                 "continuation on the map runs on to the edge of the view"), keep=True)
-        tip_mm, used_tip_map, at_echo_end, spread = self._tip(frame, seg, lik.tip, map_grid,
-                                                              reach)
+        # a new learned track's tip is not read on its weaker continuation: on one frame
+        # nothing tells that from the streak past a tip of plane-wave imaging (classical
+        # features read the echo on past a line-contrast segment that stops short of the tip)
+        first = new_line and self.features.kind == "learned"
+        tip_mm, used_tip_map, at_echo_end, spread = self._tip(
+            frame, seg, lik.tip, map_grid, 0.0 if first else reach)
         reason = self._proven(seg, tip_mm, new_line, frame.t)
         if reason:
             return self._missed(frame, seg, reason)

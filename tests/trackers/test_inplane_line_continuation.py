@@ -93,3 +93,40 @@ def test_a_needle_fading_on_the_map_is_lost_once_its_tip_stops_advancing_there()
     assert not tracking[18:].any()
     assert "runs on to the edge" in est[18].reason
 
+
+
+class _MapsWithTip(_Maps):
+    """The stand-in learned source with a tip map as well."""
+
+    def __init__(self, maps, tips):
+        super().__init__(maps)
+        self.tips = list(tips)
+
+    def likelihood(self, frame, roi=None):
+        return Likelihood(shaft=self.maps[frame.index], tip=self.tips[frame.index],
+                          source=self.name)
+
+
+def test_a_new_tracks_first_tip_is_not_read_on_its_weaker_continuation():
+    """A needle's first frame, confident on the map (0.9) to its tip and weaker (0.35) for 6
+    mm past it, the tip map firing at that continuation's end (the streak past a tip of
+    plane-wave imaging, as PyMUST's images show it): the new track's tip is the confident
+    segment's end. Once tracked, a needle's continuation confirmed by the tip map is read as
+    before (``test_inplane_line.py``: a shallow needle through the side)."""
+    entry = np.array([0.0, 10.0])  # (row, col)
+    d = np.array([0.3, 1.0]) / np.hypot(0.3, 1.0)
+    tip = entry + d * 150.0  # 30 mm along
+    streak = entry + d * 180.0  # 6 mm on
+    shaft = np.zeros((H, W), np.float32)
+    cv2.line(shaft, (int(tip[1]), int(round(tip[0]))), (int(streak[1]), int(round(streak[0]))),
+             0.35, 3)
+    cv2.line(shaft, (int(entry[1]), int(entry[0])), (int(tip[1]), int(round(tip[0]))), 0.9, 3)
+    tip_map = np.zeros((H, W), np.float32)
+    cv2.circle(tip_map, (int(streak[1]), int(round(streak[0]))), 3, 0.9, -1)
+    grid = synth.Grid((H, W), (STEP, STEP), (0.0, 0.0))
+    image = np.random.default_rng(12).integers(40, 120, (H, W)).astype(np.uint8)
+    tr = LineTracker(features=_MapsWithTip([shaft], [tip_map]))
+    est = tr.update(Frame(image=image, grid=grid, t=0.0, index=0))
+    assert est.status == Status.TRACKING, est.reason
+    true_tip = np.array([tip[1], tip[0]]) * STEP
+    assert np.linalg.norm(est.tip_mm - true_tip) < 0.6, (est.tip_mm, true_tip)

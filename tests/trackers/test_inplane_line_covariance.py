@@ -2,9 +2,9 @@
 refused: the prediction is reported, and its covariance covers the measured tip too (the image
 put the tip there; one of the two is wrong and the frame cannot tell which).
 
-PyMUST validation sequence `val_lin_right_side_10_faint` (a needle advancing 1.4 mm per frame):
-the filter, started on a first tip 5.9 mm past the needle's, refuses correct measurements on
-three of its first five frames."""
+PyMUST validation sequence `val_lin_right_top_45_interface` (a needle beside a bright
+parallel interface): the filter refuses the tips measured on two of its last frames, 2.4 and
+3.8 mm from its prediction."""
 
 from pathlib import Path
 
@@ -14,7 +14,7 @@ import pytest
 import synth
 
 SEQ = (Path(__file__).resolve().parents[2] / "needlenet" / "data" / "validation"
-       / "val_lin_right_side_10_faint.npz")
+       / "val_lin_right_top_45_interface.npz")
 
 
 def test_a_refused_measurement_lies_inside_the_reported_covariance():
