@@ -26,7 +26,7 @@ import numpy as np
 
 from ..backends import NeedleLine
 
-__all__ = ["GrowingMarkParams", "GrowingMark", "StillMarks", "runs_along"]
+__all__ = ["GrowingMarkParams", "GrowingMark", "StillMarks", "line_middle", "runs_along"]
 
 
 @dataclass(frozen=True)
@@ -84,12 +84,13 @@ class GrowingMark:
         self._unseen = 0
         if self._middle is not None and _passes_near(seg, self._middle, self.params.near_mm):
             return float(seg.length_mm - self._length)
-        self._middle = _middle(seg)
+        self._middle = line_middle(seg)
         self._length = float(seg.length_mm)
         return 0.0
 
 
-def _middle(seg: NeedleLine) -> np.ndarray:
+def line_middle(seg: NeedleLine) -> np.ndarray:
+    """The middle (x, z) mm of ``seg``."""
     return 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
 
 
@@ -121,7 +122,7 @@ class StillMarks:
         ``far_end_mm`` and ``far_tip_mm`` at the furthest."""
         if len(self._marks) >= _MAX_MARKS:
             del self._marks[0]  # the oldest goes first
-        self._marks.append((_middle(seg), np.asarray(seg.direction, float).copy(),
+        self._marks.append((line_middle(seg), np.asarray(seg.direction, float).copy(),
                             np.asarray(far_end_mm, float).copy(),
                             np.asarray(far_tip_mm, float).copy()))
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..backends import NeedleLine, chi2_gate
 from ._inplane_geometry import distance_to_edge, on_line
-from ._inplane_growing import runs_along
+from ._inplane_growing import line_middle, runs_along
 
 __all__ = ["ConfirmedTrack", "PausedProbation"]
 
@@ -190,7 +190,7 @@ class _Unproven:
 
     def __init__(self, seg: NeedleLine, tip_mm: np.ndarray, t: float):
         self.t0 = t
-        self.middle_mm = 0.5 * (np.asarray(seg.start_mm, float) + np.asarray(seg.end_mm, float))
+        self.middle_mm = line_middle(seg)
         self.direction = np.asarray(seg.direction, float).copy()
         self.end0_mm = np.asarray(seg.end_mm, float).copy()
         self.tip0_mm = np.asarray(tip_mm, float).copy()
