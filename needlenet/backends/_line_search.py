@@ -219,33 +219,49 @@ def refine_line(pts: np.ndarray, w: np.ndarray, theta: float, rho: float,
                 bands_mm) -> tuple[np.ndarray, np.ndarray] | None:
     """Weighted total least squares of the points within each band (mm) of the line in turn:
     (centroid, unit direction), or None when fewer than two points support it."""
-    # the coordinates as two contiguous vectors: the sums below are dot products, without
-    # the (N, 2) temporaries of a matrix form (half the time on 2,000 points)
-    x = np.ascontiguousarray(pts[:, 0], dtype=float)
-    z = np.ascontiguousarray(pts[:, 1], dtype=float)
-    w = np.asarray(w, float)
-    c, d = None, np.array([np.cos(theta), np.sin(theta)])
-    n0, n1 = -np.sin(theta), np.cos(theta)
-    for band in bands_mm:
-        if c is None:
-            dist = np.abs(x * n0 + z * n1 - rho)
-        else:
-            dist = np.abs((x - c[0]) * n0 + (z - c[1]) * n1)
-        sel = dist <= band
-        ww = w[sel]
-        total = ww.sum()
-        if ww.size < 2 or not total > 0:
-            return None
-        px, pz = x[sel], z[sel]
-        c = np.array([ww @ px, ww @ pz]) / total
-        qx, qz = px - c[0], pz - c[1]
-        wqx = ww * qx
-        sxz = wqx @ qz / total
-        cov = np.array([[wqx @ qx / total, sxz], [sxz, (ww * qz) @ qz / total]])
-        _, evecs = np.linalg.eigh(cov)
-        d = evecs[:, 1]
+    c, d = np.zeros(2), np.array([np.cos(theta), np.sin(theta)])
+    ok = _refine(np.ascontiguousarray(pts[:, 0], dtype=float),
+                 np.ascontiguousarray(pts[:, 1], dtype=float), np.ascontiguousarray(w, dtype=float),
+                 float(rho), np.asarray(bands_mm, float).reshape(-1), c, d)
+    return (c, d) if ok else None
+
+
+@numba.njit(cache=True, nogil=True)
+def _refine(x, z, w, rho, bands, c, d):  # pragma: no cover - compiled
+    """:func:`refine_line` on coordinate vectors ``x``, ``z``: ``d`` holds the Hough line's
+    direction on entry; the centroid and unit direction are written into ``c`` and ``d``.
+    The first band lies about the Hough line (offset ``rho``), each next one about the fit
+    before; each pass takes the weighted centroid of the points in its band, then their
+    moments about it. False when a band holds fewer than two points or no positive weight."""
+    n0, n1 = -d[1], d[0]
+    for band in bands:
+        sw = sx = sz = 0.0
+        k = 0
+        for i in range(x.size):
+            if abs(x[i] * n0 + z[i] * n1 - rho) <= band:
+                sw += w[i]
+                sx += w[i] * x[i]
+                sz += w[i] * z[i]
+                k += 1
+        if k < 2 or not sw > 0:
+            return False
+        cx, cz = sx / sw, sz / sw
+        sxx = sxz = szz = 0.0
+        for i in range(x.size):
+            if abs(x[i] * n0 + z[i] * n1 - rho) <= band:
+                qx, qz = x[i] - cx, z[i] - cz
+                sxx += w[i] * qx * qx
+                sxz += w[i] * qx * qz
+                szz += w[i] * qz * qz
+        cov = np.empty((2, 2))
+        cov[0, 0], cov[0, 1], cov[1, 0], cov[1, 1] = sxx / sw, sxz / sw, sxz / sw, szz / sw
+        axis = np.linalg.eigh(cov)[1][:, 1]  # LAPACK's, as numpy's eigh gives it
+        norm = np.sqrt(axis[0] ** 2 + axis[1] ** 2)
+        c[0], c[1] = cx, cz
+        d[0], d[1] = axis[0] / norm, axis[1] / norm
         n0, n1 = -d[1], d[0]
-    return c, d / np.linalg.norm(d)
+        rho = cx * n0 + cz * n1
+    return True
 
 
 def _clip_to_box(c: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray):
@@ -274,22 +290,43 @@ def line_segment(wm: WorkingMap, c: np.ndarray, d: np.ndarray, level: float,
     if len(t) < 2:
         return NeedleLine(False, "the line crosses the image in less than two samples")
     prof = _profile(wm, c, d, t, params)
-    on = np.flatnonzero(prof >= level)
-    if on.size == 0:
+    # the level in the profile's type, as numpy compares an array with a Python float
+    i0, i1, total = _best_run(prof, prof.dtype.type(level),
+                              max(int(round(params.gap_mm / step)), 1))
+    if i0 < 0:
         return NeedleLine(False, f"no evidence above {level:g} along the line", profile=prof)
-    first, last = bridged_runs(on, max(int(round(params.gap_mm / step)), 1))
-    # label the samples of each run (its bridged gaps included) 1, 2, ...; 0 between runs
-    mark = np.zeros(prof.size + 1, np.int64)
-    mark[first] = 1
-    mark[last + 1] -= 1
-    labels = np.cumsum(np.bincount(first, minlength=prof.size)) * np.cumsum(mark[:-1])
-    sums = np.bincount(labels, weights=prof, minlength=first.size + 1)[1:]
-    best = int(np.argmax(sums)) + 1
-    i0, i1 = int(first[best - 1]), int(last[best - 1])
     t0, t1 = _crossing(t, prof, i0, -1, level), _crossing(t, prof, i1, +1, level)
     support = float(prof[i0:i1 + 1].mean())
-    return NeedleLine(True, "", c + t0 * d, c + t1 * d, d.copy(), support,
-                      float(sums[best - 1]) * step, prof[i0:i1 + 1])
+    return NeedleLine(True, "", c + t0 * d, c + t1 * d, d.copy(), support, total * step,
+                      prof[i0:i1 + 1])
+
+
+@numba.njit(cache=True, nogil=True)
+def _best_run(prof, level, gap):  # pragma: no cover - compiled
+    """The run of ``prof`` at or above ``level``, gaps of up to ``gap`` samples bridged (a
+    binary closing with a ``gap + 1``-sample element), with the largest sum of the profile
+    over it (its bridged gaps included; the first of equal sums): (first index, last index,
+    sum), or (-1, -1, 0.0) when no sample reaches the level. Sums in float64 in index
+    order."""
+    best0, best1, best = -1, -1, 0.0
+    i, n = 0, prof.size
+    while i < n:
+        if prof[i] < level:
+            i += 1
+            continue
+        first = last = i
+        j = i + 1
+        while j < n and j - last <= gap + 1:
+            if prof[j] >= level:
+                last = j
+            j += 1
+        total = 0.0
+        for k in range(first, last + 1):
+            total += np.float64(prof[k])
+        if best0 < 0 or total > best:
+            best0, best1, best = first, last, total
+        i = last + 1
+    return best0, best1, best
 
 
 def extend_end(wm: WorkingMap, seg: NeedleLine, level: float,
@@ -338,22 +375,13 @@ def _profile(wm: WorkingMap, c: np.ndarray, d: np.ndarray, t: np.ndarray,
     return wm.sample(pts).max(axis=0)
 
 
-def bridged_runs(on: np.ndarray, gap: int) -> tuple[np.ndarray, np.ndarray]:
-    """The runs of the increasing sample indices ``on`` once gaps of up to ``gap`` samples
-    are bridged (a binary closing with a ``gap + 1``-sample element): the first and the last
-    index of each run, in order."""
-    split = np.flatnonzero(np.diff(on) > gap + 1)
-    return (on[np.concatenate([[0], split + 1])],
-            on[np.concatenate([split, [on.size - 1]])])
-
-
 def _crossing(t: np.ndarray, prof: np.ndarray, i: int, side: int, level: float) -> float:
     """Where the profile crosses ``level`` between sample i (on) and its neighbour i + side."""
     j = i + side
     if not 0 <= j < len(prof) or prof[j] >= prof[i]:
         return float(t[i])
     frac = (prof[i] - level) / max(prof[i] - prof[j], 1e-12)
-    return float(t[i] + side * np.clip(frac, 0.0, 1.0) * (t[1] - t[0]))
+    return float(t[i] + side * min(max(frac, 0.0), 1.0) * (t[1] - t[0]))
 
 
 def find_needle_line(wm: WorkingMap, level: float, params: LineSearchParams,

@@ -10,7 +10,7 @@ from needlenet.backends._line_search import (
     _VOTE_BLOCK,
     LineSearchParams,
     WorkingMap,
-    bridged_runs,
+    _best_run,
     extend_end,
     find_needle_line,
     hough_peaks,
@@ -207,20 +207,27 @@ def test_votes_on_the_edge_of_a_rho_window_stay_in_the_accumulator():
         assert np.all((out[:, 1] >= lo) & (out[:, 1] <= lo + n_bins * bin_mm))
 
 
-def test_bridged_runs_agree_with_scipys_binary_closing():
-    """The runs of a thresholded profile with gaps of up to ``gap`` samples bridged: the
-    labelled runs of scipy's binary closing with a (gap + 1)-sample element."""
+def test_best_run_agrees_with_scipys_binary_closing_and_label_sums():
+    """The best run of a thresholded profile with gaps of up to ``gap`` samples bridged: of
+    the labelled runs of scipy's binary closing with a (gap + 1)-sample element, the one
+    with the largest profile sum over it (the first of equal sums), and that sum."""
     rng = np.random.default_rng(3)
     for _ in range(500):
         n, gap = int(rng.integers(1, 120)), int(rng.integers(1, 12))
-        on = rng.random(n) < rng.random()
+        prof = rng.random(n).astype(np.float32)
+        level = np.float32(rng.random())
+        on = prof >= level
+        i0, i1, total = _best_run(prof, level, gap)
         if not on.any():
+            assert (i0, i1) == (-1, -1)
             continue
         closed = ndimage.binary_closing(np.pad(on, gap), np.ones(gap + 1, bool))[gap:-gap]
         labels, k = ndimage.label(closed)
-        first, last = bridged_runs(np.flatnonzero(on), gap)
-        assert first.tolist() == [int(np.flatnonzero(labels == i)[0]) for i in range(1, k + 1)]
-        assert last.tolist() == [int(np.flatnonzero(labels == i)[-1]) for i in range(1, k + 1)]
+        sums = ndimage.sum_labels(prof.astype(float), labels, np.arange(1, k + 1))
+        best = int(np.argmax(sums)) + 1
+        run = np.flatnonzero(labels == best)
+        assert (i0, i1) == (int(run[0]), int(run[-1]))
+        assert total == pytest.approx(sums[best - 1], rel=1e-12)
 
 
 def test_votes_counted_in_blocks_of_directions_equal_one_accumulator():
