@@ -371,8 +371,12 @@ def _profile(wm: WorkingMap, c: np.ndarray, d: np.ndarray, t: np.ndarray,
     n = np.array([-d[1], d[0]])
     k = max(int(round(params.profile_half_width_mm / wm.step)), 0)
     offs = np.arange(-k, k + 1) * wm.step
-    pts = c[None, None] + t[None, :, None] * d[None, None] + offs[:, None, None] * n[None, None]
-    return wm.sample(pts).max(axis=0)
+    # WorkingMap.sample's arithmetic on each coordinate alone (no (K, T, 2) points)
+    x = (c[0] + t[None, :] * d[0] + offs[:, None] * n[0]).astype(np.float32)
+    z = (c[1] + t[None, :] * d[1] + offs[:, None] * n[1]).astype(np.float32)
+    mx = ((x - wm.x0) / wm.step).astype(np.float32)
+    my = ((z - wm.z0) / wm.step).astype(np.float32)
+    return remap_points(wm.values, mx, my).max(axis=0)
 
 
 def _crossing(t: np.ndarray, prof: np.ndarray, i: int, side: int, level: float) -> float:

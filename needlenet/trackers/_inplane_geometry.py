@@ -4,6 +4,7 @@ region (:mod:`._margins`)."""
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from .._sampling import remap_points
@@ -72,14 +73,32 @@ def distance_to_edge(valid: np.ndarray, frame: Frame, start: np.ndarray,
                       direction: np.ndarray, step_mm: float = 0.2,
                       max_mm: float = 200.0) -> float:
     """How far (mm) from ``start`` the imaged region ends along ``direction`` (2,), or along
-    the nearest of several directions (D, 2)."""
-    dirs = np.asarray(direction, float).reshape(-1, 2)
+    the nearest of several directions (D, 2): the first of the samples every ``step_mm`` at
+    which a direction's nearest pixel lies outside ``valid`` or the frame (``max_mm`` when
+    none does)."""
+    dirs = np.ascontiguousarray(np.asarray(direction, float).reshape(-1, 2))
     s = np.arange(0.0, max_mm, step_mm)
-    pts = start[None, None] + s[None, :, None] * dirs[:, None, :]  # (D, S, 2)
-    idx = np.rint(frame.grid.points_to_index(pts.reshape(-1, 2))).astype(int)
+    g = frame.grid
+    k = _first_outside(np.asarray(valid, bool), np.asarray(start, float), dirs, s,
+                       float(g.origin_mm[0]), float(g.origin_mm[1]),
+                       float(g.spacing_mm[0]), float(g.spacing_mm[1]))
+    return float(s[k]) if k < s.size else float(max_mm)
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_outside(valid, start, dirs, s, oz, ox, dz, dx):  # pragma: no cover - compiled
+    """The least sample index j over the directions at which the point start + s[j] * d
+    rounds (half to even, as np.rint) to a pixel outside ``valid`` or the frame; s.size
+    when none does. Each direction is marched only as far as the best found so far."""
     h, w = valid.shape
-    inside = (idx[:, 0] >= 0) & (idx[:, 0] < h) & (idx[:, 1] >= 0) & (idx[:, 1] < w)
-    ok = np.zeros(len(idx), bool)
-    ok[inside] = valid[idx[inside, 0], idx[inside, 1]]
-    out = np.flatnonzero(~ok.reshape(len(dirs), len(s)).all(axis=0))
-    return float(s[out[0]]) if out.size else float(max_mm)
+    best = s.size
+    for a in range(dirs.shape[0]):
+        for j in range(best):
+            x = start[0] + s[j] * dirs[a, 0]
+            z = start[1] + s[j] * dirs[a, 1]
+            r = np.rint((z - oz) / dz)
+            c = np.rint((x - ox) / dx)
+            if not (0 <= r < h and 0 <= c < w) or not valid[int(r), int(c)]:
+                best = j
+                break
+    return best

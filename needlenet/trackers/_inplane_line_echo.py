@@ -84,10 +84,11 @@ class EchoTestParams:
 def image_strip(image: np.ndarray, frame: Frame, start: np.ndarray, d: np.ndarray,
                 up: np.ndarray, t: np.ndarray, y: np.ndarray) -> np.ndarray:
     """The image on points start + t d + y up: rows y, columns t."""
-    pts = start[None, None] + t[None, :, None] * d[None, None] + y[:, None, None] * up[None, None]
-    idx = frame.grid.points_to_index(pts.reshape(-1, 2))
-    out = remap_points(image, idx[:, 1], idx[:, 0], cv2.BORDER_REPLICATE)
-    return out.reshape(len(y), len(t)).astype(np.float64)
+    (oz, ox), (dz, dx) = frame.grid.origin_mm, frame.grid.spacing_mm
+    # each coordinate on its own (Grid.points_to_index's arithmetic, without (N, 2) arrays)
+    cols = ((start[0] + t[None, :] * d[0]) + y[:, None] * up[0] - ox) / dx
+    rows = ((start[1] + t[None, :] * d[1]) + y[:, None] * up[1] - oz) / dz
+    return remap_points(image, cols, rows, cv2.BORDER_REPLICATE).astype(np.float64)
 
 
 def _row_medians(image: np.ndarray) -> np.ndarray:
