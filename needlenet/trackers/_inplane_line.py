@@ -24,7 +24,9 @@ needle whose tip has left the view, or the edge of a capture margin or sector ma
 taken for one; nor is a segment whose deeper end, where a needle's tip would be, lies at that
 edge (the tip is out of view), nor, as a new needle, one whose echo in the image goes on past
 its end to that edge (a shaft map may mark only part of an interface) or that ends too near
-it for the image to show whether the echo ends there. A needle comes in
+it for the image to show whether the echo ends there. A line shorter than
+``settled_length_mm`` that runs along the beams is a reverberation tail, not a shaft, whose
+echo comes back across them (:mod:`._beams`). A needle comes in
 through the skin or the side of the view and goes in along its axis, so a segment floating in
 the tissue (its entry end away from the edge of the view) is never taken for a new needle, and
 once a needle has been tracked it is taken only as the continuation of the needle seen on the
@@ -74,6 +76,7 @@ import numpy as np
 from ..backends import NeedleLine, WorkingMap, chi2_gate, find_needle_line, working_map
 from ..features import FeatureSource, Frame, line_contrast
 from ._base import NeedleEstimate, Status, Tracker
+from ._beams import along_beams
 from ._details import LineDetails
 from ._inplane_geometry import AROUND, behind_on_line, distance_to_edge, entry_to_tip, on_line
 from ._inplane_growing import GrowingMark, StillMarks
@@ -315,7 +318,8 @@ class LineTracker(LineTip, ConfirmedTrack, MovingTip, TipKalman, Tracker):
             return ""
 
         def check(seg: NeedleLine) -> str:
-            return shape(seg) or place(seg) or echo(seg)
+            return shape(seg) or place(seg) or along_beams(
+                frame, seg, p.beam_min_angle_deg, p.settled_length_mm) or echo(seg)
 
         def looks(seg: NeedleLine, level: float) -> str:
             if not (seg.length_mm >= p.min_length_mm and seg.support >= level):

@@ -75,6 +75,12 @@ class LineTrackerParams:
     line or straight) enters through it, as an inserted needle does; a floating one is taken
     only as the continuation of the needle seen on the frame before (on its axis, within
     ``track_window_deg``/``track_window_mm``, its end inside the tip filter's gate).
+    ``beam_min_angle_deg``: a line shorter than ``settled_length_mm`` that runs within this
+    of the beams (:mod:`._beams`, where the imaged region shows them) is no needle: a needle's
+    shaft echoes back to the probe where the beams meet it across, and one they graze within
+    15 degrees reflects its echo away (its incidence 75 degrees or more from the normal, past
+    the aperture's reach at any depth); a short line along the beams is the reverberation
+    tail under a bright reflector (a needle's own, below its first millimetres of shaft).
     ``echo``: with classical features a line is a needle only where its echo shows along it
     (:mod:`._inplane_line_echo`). ``echo_end``: a tip past where the
     needle's echo ends in the image is moved back there (:mod:`._inplane_echo_end`).
@@ -122,6 +128,7 @@ class LineTrackerParams:
     edge_margin_mm: float = 2.0
     tip_room_sections: int = 2
     entry_margin_mm: float = 3.0
+    beam_min_angle_deg: float = 15.0
     mask_edge_mm: float = 1.5
 
     def __post_init__(self) -> None:
@@ -158,3 +165,6 @@ class LineTrackerParams:
         if not 0.0 < self.track_window_deg <= 90.0:
             raise ValueError(f"track_window_deg must lie in (0, 90], got "
                              f"{self.track_window_deg}")
+        if not 0.0 <= self.beam_min_angle_deg < 90.0:
+            raise ValueError(f"beam_min_angle_deg must lie in [0, 90), got "
+                             f"{self.beam_min_angle_deg}")
