@@ -23,6 +23,7 @@ from ._base import FeatureSource, Frame, FrameError, Likelihood
 from ._resample import (
     NORMALIZATIONS,
     apply_weights,
+    clip_unit,
     frame_image_statistics,
     frame_statistics,
     model_grid,
@@ -392,9 +393,7 @@ class LearnedFeatures(FeatureSource):
         xp, crop = pad_to_multiple(x, self.multiple)
         y = self.session.run(["likelihood"], {"image": xp[None, None].astype(np.float32)})[0][0]
         up = to_frame_grid(y, xp.shape)[(slice(None),) + crop]  # stride 2 -> the model grid
-        # fmax/fmin clip like np.clip but turn NaN into 0: a model that fails somewhere gives
-        # no evidence there (the tracker then says lost), never a NaN estimate
-        return np.fmin(np.fmax(up, 0.0, out=up), 1.0, out=up)
+        return clip_unit(up)
 
     def native_likelihood(self, frame: Frame):
         """2D frames: the maps on the model's grid (:func:`model_grid`), without their return
@@ -514,7 +513,6 @@ class LearnedFeatures(FeatureSource):
                          for f, la, r in zip(g.first, g.last, rows, strict=True))
             maps = apply_weights(y[(slice(None),) + cols],
                                  [w[r, c] for w, r, c in zip(g.w_out, rows, cols, strict=True)])
-            # NaN (a model that fails somewhere) becomes 0, as in run_model
-            np.fmin(np.fmax(maps, 0.0, out=maps), 1.0, out=maps)
+            clip_unit(maps)  # NaN (a model that fails somewhere) becomes 0, as in run_model
             shaft[rows], tip[rows] = maps[0], maps[1]
         return Likelihood(shaft=shaft, tip=tip, source=self.name)

@@ -13,7 +13,7 @@ from synth import Grid
 
 __all__ = ["model_shape", "model_grid", "to_model_grid", "to_frame_grid", "pad_to_multiple",
            "image_level", "image_statistics", "frame_image_statistics", "frame_statistics",
-           "normalize", "NORMALIZATIONS",
+           "normalize", "NORMALIZATIONS", "clip_unit",
            "axis_weights", "resize_weights", "apply_weights"]
 
 # Intensity normalisations a model can be trained with (stored in its ONNX metadata):
@@ -262,6 +262,14 @@ def _counts_median_mad(counts: np.ndarray) -> tuple[float, float]:
     # deviations |v - med| in half-units, integers whether the median is whole or not
     twice = np.abs(2 * np.arange(len(counts)) - int(round(2 * med)))
     return med, 0.5 * _histogram_median(np.bincount(twice, weights=counts))
+
+
+def clip_unit(a: np.ndarray) -> np.ndarray:
+    """``a`` clipped to [0, 1] in place, NaN set to 0 (a model that fails somewhere gives no
+    evidence there: the tracker then says lost, never a NaN estimate); returns ``a``."""
+    np.clip(a, 0.0, 1.0, out=a)
+    a[np.isnan(a)] = 0.0
+    return a
 
 
 def image_statistics(image: np.ndarray, max_samples: int = 65536) -> tuple[float, float]:

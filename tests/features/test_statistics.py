@@ -4,7 +4,11 @@ frames, the same numbers as numpy's median on the same samples."""
 import numpy as np
 import pytest
 
-from needlenet.features._resample import _counts_median_mad, image_statistics
+from needlenet.features._resample import (
+    _counts_median_mad,
+    clip_unit,
+    image_statistics,
+)
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 1000, 65536])
@@ -15,6 +19,14 @@ def test_histogram_median_and_mad_agree_with_numpy(n, dtype, high):
     f = v.astype(np.float64)
     assert med == np.median(f)
     assert mad == np.median(np.abs(f - np.median(f)))
+
+
+def test_maps_clipped_to_the_unit_interval_with_nan_as_no_evidence():
+    a = np.array([[-0.5, 0.25, 1.5], [np.nan, np.inf, -np.inf]], np.float32)
+    view = np.zeros((4, 3), np.float32)
+    view[1:3] = a
+    clip_unit(view[1:3])  # in place, through a view
+    assert view[1:3].tolist() == [[0.0, 0.25, 1.0], [0.0, 1.0, 0.0]]
 
 
 def test_a_grey_frame_and_its_float_copy_give_the_same_statistics():
