@@ -5,8 +5,9 @@ A linear array's beams run straight down, a phased or convex array's fan out fro
 (the virtual apex of a convex array). The imaged region shows which: its left and right edges
 are the outermost beams. Two straight side edges that converge meet at the apex; two parallel
 ones (a linear array, or one steered to a slant) give the beams' direction; a frame with no
-side edge in view (a linear array's image filling the frame) has beams along the depth axis.
-Where only one side edge is in view, or the edges are not straight, the beams are not known.
+side edge in view (a linear array's image filling the frame) has beams along the depth axis
+(so, wrongly, has a crop from inside a sector: crop a sector with its black sides). Where only
+one side edge is in view, or the edges are not straight, the beams are not known.
 
 A needle's shaft echoes back to the probe where the beam meets it across (specular
 reflection); a line that runs along the beams is a reverberation tail ("comet tail") under
