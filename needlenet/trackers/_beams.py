@@ -108,7 +108,7 @@ def _fit_edge(rows: np.ndarray, cols: np.ndarray, top: float, span: float
 
 
 def _from_region(valid: np.ndarray, grid) -> BeamGeometry | None:
-    h, w = valid.shape
+    w = valid.shape[1]
     rows, first, last = _side_edges(valid)
     if rows.size == 0:
         return None
