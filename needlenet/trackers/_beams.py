@@ -3,7 +3,8 @@ imaged region.
 
 A linear array's beams run straight down, a phased or convex array's fan out from an apex
 (the virtual apex of a convex array). The imaged region shows which: its left and right edges
-are the outermost beams. Two straight side edges that converge meet at the apex; two parallel
+are the outermost beams (of its largest connected part: the image, not a grey-scale bar or
+text in the margin). Two straight side edges that converge meet at the apex; two parallel
 ones (a linear array, or one steered to a slant) give the beams' direction; a frame with no
 side edge in view (a linear array's image filling the frame) has beams along the depth axis
 (so, wrongly, has a crop from inside a sector: crop a sector with its black sides). Where only
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..backends import NeedleLine
@@ -107,9 +109,19 @@ def _fit_edge(rows: np.ndarray, cols: np.ndarray, top: float, span: float
     return float(icpt), float(slope)
 
 
+def _largest_part(valid: np.ndarray) -> np.ndarray:
+    """The largest connected part of the imaged region: the image, without a grey-scale bar,
+    a logo or text left in the margin beside it."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(valid.astype(np.uint8),
+                                                           connectivity=8)
+    if n <= 2:
+        return valid
+    return labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+
+
 def _from_region(valid: np.ndarray, grid) -> BeamGeometry | None:
     w = valid.shape[1]
-    rows, first, last = _side_edges(valid)
+    rows, first, last = _side_edges(_largest_part(valid))
     if rows.size == 0:
         return None
     span = float(rows[-1] - rows[0])

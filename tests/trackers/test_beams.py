@@ -27,20 +27,25 @@ def _points(grid: Grid) -> tuple[np.ndarray, np.ndarray]:
     return x[None, :], z[:, None]
 
 
-@pytest.mark.parametrize("apex, half_deg", [((0.0, 0.0), 35.0), ((4.0, -12.0), 20.0),
-                                            ((-3.0, -2.0), 45.0)])
-def test_a_sectors_apex_is_where_its_side_edges_meet(apex, half_deg):
+@pytest.mark.parametrize("apex, half_deg, bar", [((0.0, 0.0), 35.0, False),
+                                                 ((4.0, -12.0), 20.0, False),
+                                                 ((-3.0, -2.0), 45.0, False),
+                                                 ((0.0, 0.0), 35.0, True)])
+def test_a_sectors_apex_is_where_its_side_edges_meet(apex, half_deg, bar):
     """A phased or convex array's sector (apex above or at the top of the view, the top and
-    bottom arcs about it): the apex within a millimetre (the region's edge is read a fraction
-    of a pixel inside the sector's, which moves the apex up the more the narrower the sector
-    is), and the beam through points of the view along the line from the apex within 1
-    degree."""
+    bottom arcs about it; once with a grey-scale bar in the margin): the apex within a
+    millimetre (the region's edge is read a fraction of a pixel inside the sector's, which
+    moves the apex up the more the narrower the sector is), and the beam through points of
+    the view along the line from the apex within 1 degree."""
     grid = Grid((300, 360), (0.15, 0.15), (0.0, -27.0))
     x, z = _points(grid)
     r = np.hypot(x - apex[0], z - apex[1])
     ang = np.degrees(np.arctan2(x - apex[0], z - apex[1]))
     valid = (np.abs(ang) <= half_deg) & (r >= 2.0 - apex[1]) & (r <= 40.0)
-    g = beam_geometry(_frame(valid, grid))
+    frame = _frame(valid, grid)
+    if bar:  # a scanner's grey-scale bar in the black margin beside the sector
+        frame.image[20:290, 5:20] = np.linspace(0, 255, 270)[:, None].astype(np.uint8)
+    g = beam_geometry(frame)
     assert g is not None and g.apex_mm is not None
     assert np.linalg.norm(g.apex_mm - np.array(apex)) < 1.0
     for p in (np.array([apex[0] + 5.0, 30.0]), np.array([apex[0] - 8.0, 25.0])):
