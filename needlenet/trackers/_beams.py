@@ -6,9 +6,10 @@ A linear array's beams run straight down, a phased or convex array's fan out fro
 are the outermost beams (of its largest connected part: the image, not a grey-scale bar or
 text in the margin). Two straight side edges that converge meet at the apex; two parallel
 ones (a linear array, or one steered to a slant) give the beams' direction; a frame with no
-side edge in view (a linear array's image filling the frame) has beams along the depth axis
-(so, wrongly, has a crop from inside a sector: crop a sector with its black sides). Where only
-one side edge is in view, or the edges are not straight, the beams are not known.
+side edge in view (a linear array's image filling the frame) or only one, upright, has beams
+along the depth axis (so, wrongly, has a crop from inside a sector: crop a sector with its
+black sides). Where one slanted side edge is in view, or the edges are not straight, the
+beams are not known.
 
 A needle's shaft echoes back to the probe where the beam meets it across (specular
 reflection); a line that runs along the beams is a reverberation tail ("comet tail") under
@@ -131,9 +132,14 @@ def _from_region(valid: np.ndarray, grid) -> BeamGeometry | None:
         return BeamGeometry(direction=np.array([0.0, 1.0]))  # no side edge: a linear image
     left = _fit_edge(rows[on_left], first[on_left], rows[0], span)
     right = _fit_edge(rows[on_right], last[on_right], rows[0], span)
+    dz, dx = grid.spacing_mm
+    one = left if not on_right.any() else right if not on_left.any() else None
+    if one is not None and abs(np.degrees(np.arctan(one[1] * dx / dz))) <= _PARALLEL_DEG:
+        # one straight upright edge, the image running on out of the frame on the other
+        # side: a linear image (a sector's side is never upright)
+        return BeamGeometry(direction=np.array([0.0, 1.0]))
     if left is None or right is None:
         return None
-    dz, dx = grid.spacing_mm
     oz, ox = grid.origin_mm
     # each edge as x = a + b z in mm
     (al, bl), (ar, br) = ((ox + dx * (c0 - s * oz / dz), s * dx / dz) for c0, s in (left, right))

@@ -75,7 +75,14 @@ def test_parallel_slanted_side_edges_are_a_steered_linear_array():
     assert np.degrees(np.arctan2(g.direction[0], g.direction[1])) == pytest.approx(12.0, abs=0.3)
 
 
-def test_one_side_edge_or_a_ragged_region_leaves_the_beams_unknown():
+def test_one_upright_side_edge_is_a_linear_image_flush_with_the_frame():
+    grid = Grid((200, 300), (0.1, 0.1), (0.0, 0.0))
+    x, _ = _points(grid)
+    g = beam_geometry(_frame(np.broadcast_to(x >= 6.0, grid.shape), grid))
+    assert g is not None and g.apex_mm is None and np.allclose(g.direction, [0.0, 1.0])
+
+
+def test_one_slanted_side_edge_or_a_ragged_region_leaves_the_beams_unknown():
     grid = Grid((200, 300), (0.1, 0.1), (0.0, 0.0))
     x, z = _points(grid)
     one_side = np.broadcast_to(x >= 8.0 + 0.3 * z, grid.shape)
