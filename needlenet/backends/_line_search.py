@@ -119,8 +119,14 @@ class WorkingMap:
     def sample(self, pts: np.ndarray) -> np.ndarray:
         """Bilinear samples at points (..., 2) in mm; 0 outside the map."""
         p = np.asarray(pts, np.float32)
-        mx = ((p[..., 0] - self.x0) / self.step).astype(np.float32)
-        my = ((p[..., 1] - self.z0) / self.step).astype(np.float32)
+        return self.sample_xz(p[..., 0], p[..., 1])
+
+    def sample_xz(self, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """Bilinear samples at points given as two coordinate arrays (mm, any one shape); 0
+        outside the map."""
+        x, z = np.asarray(x, np.float32), np.asarray(z, np.float32)
+        mx = ((x - self.x0) / self.step).astype(np.float32)
+        my = ((z - self.z0) / self.step).astype(np.float32)
         return remap_points(self.values, mx, my)
 
 
@@ -371,12 +377,9 @@ def _profile(wm: WorkingMap, c: np.ndarray, d: np.ndarray, t: np.ndarray,
     n = np.array([-d[1], d[0]])
     k = max(int(round(params.profile_half_width_mm / wm.step)), 0)
     offs = np.arange(-k, k + 1) * wm.step
-    # WorkingMap.sample's arithmetic on each coordinate alone (no (K, T, 2) points)
-    x = (c[0] + t[None, :] * d[0] + offs[:, None] * n[0]).astype(np.float32)
-    z = (c[1] + t[None, :] * d[1] + offs[:, None] * n[1]).astype(np.float32)
-    mx = ((x - wm.x0) / wm.step).astype(np.float32)
-    my = ((z - wm.z0) / wm.step).astype(np.float32)
-    return remap_points(wm.values, mx, my).max(axis=0)
+    # each coordinate on its own: no (K, T, 2) points
+    return wm.sample_xz(c[0] + t[None, :] * d[0] + offs[:, None] * n[0],
+                        c[1] + t[None, :] * d[1] + offs[:, None] * n[1]).max(axis=0)
 
 
 def _crossing(t: np.ndarray, prof: np.ndarray, i: int, side: int, level: float) -> float:
