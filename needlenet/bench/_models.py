@@ -213,7 +213,7 @@ class _Cached(FeatureSource):
 
 def onnx_latency(source: LearnedFeatures, shape, threads: int, repeats: int = 30) -> dict:
     x = np.random.default_rng(0).normal(size=(1, 1, *shape)).astype(np.float32)
-    sess = source.session
+    sess = source.sessions.session_for(shape)  # the session the trackers run it on
     for _ in range(3):
         sess.run(None, {"image": x})
     times = []

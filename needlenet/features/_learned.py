@@ -34,6 +34,7 @@ from ._resample import (
     to_frame_grid,
     to_model_grid,
 )
+from ._sessions import ModelSessions, session_options
 from ._speckle import grid_scale, speckle_widths
 
 __all__ = ["GridMaps", "LearnedFeatures", "ModelError", "SHIPPED_MODELS", "plan_boxes",
@@ -182,11 +183,10 @@ def plan_boxes(cells: np.ndarray, grid, margin, align: int, reach):
 class LearnedFeatures(FeatureSource):
     """Shaft and tip probability maps from an ONNX model.
 
-    ``threads``: onnxruntime intra-op threads (the session is set up for low latency, as
-    onnxruntime's tuning guide has it: sequential execution, all graph optimisations, and no
-    thread spinning between calls, which on a shared machine takes the cores other work
-    needs). ``margin_mm``: context added around an ROI, or around each box covering a
-    region, before inference.
+    ``threads``: onnxruntime intra-op threads (the sessions are set up for low latency:
+    :func:`~._sessions.session_options`; a 2-D frame size that recurs runs on a session fixed
+    to it, :class:`~._sessions.ModelSessions`). ``margin_mm``: context added around an ROI,
+    or around each box covering a region, before inference.
     """
 
     kind = "learned"
@@ -200,18 +200,13 @@ class LearnedFeatures(FeatureSource):
             raise ModelError(f"model {path} does not exist")
         if not path.is_file():  # a folder, or a FIFO onnxruntime would wait on for ever
             raise ModelError(f"model {path} is not a regular file")
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = int(threads)
-        opts.inter_op_num_threads = 1
-        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
-            self.session = ort.InferenceSession(str(path), opts,
-                                                providers=["CPUExecutionProvider"])
+            session = ort.InferenceSession(str(path), session_options(threads),
+                                           providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types
             raise ModelError(f"model {path} cannot be loaded by onnxruntime: "
                              f"{str(exc).splitlines()[0]}") from None
+        self.sessions = ModelSessions(path, session, threads)
         meta = self.session.get_modelmeta().custom_metadata_map
         try:
             self.modality = meta["modality"]
@@ -254,6 +249,11 @@ class LearnedFeatures(FeatureSource):
         if self.target_reference not in ("centerline", "wall"):
             raise ModelError(f"model {path}: metadata target_reference must be 'centerline' "
                              f"or 'wall', got {self.target_reference!r}")
+
+    @property
+    def session(self):
+        """The onnxruntime session of the model as exported (free spatial axes)."""
+        return self.sessions.exported
 
     def _check_model(self, path: Path) -> None:
         """Metadata in range, an input of rank 2 + D with free spatial axes, and one dry run on
@@ -377,11 +377,14 @@ class LearnedFeatures(FeatureSource):
         whole frame's :func:`frame_statistics` when ``image`` is an ROI of it. A frame too
         large on the model's grid (:meth:`check_frame_size`) is a FrameError: no evidence."""
         # linear resampling keeps the clipped maps in [0, 1]
-        return to_frame_grid(self._model_grid_maps(image, spacing_mm, level), image.shape)
+        return to_frame_grid(self._model_grid_maps(image, spacing_mm, level,
+                                                   whole_frame=level is None), image.shape)
 
-    def _model_grid_maps(self, image: np.ndarray, spacing_mm, level=None) -> np.ndarray:
+    def _model_grid_maps(self, image: np.ndarray, spacing_mm, level=None,
+                         whole_frame: bool = False) -> np.ndarray:
         """The network's maps (2, *model shape) on the model's grid, in [0, 1]; a FrameError
-        for a frame too large there."""
+        for a frame too large there. ``whole_frame``: ``image`` is a whole frame (its size
+        recurs: :meth:`~._sessions.ModelSessions.run`)."""
         try:
             self.check_frame_size(np.shape(image), spacing_mm)
         except ModelError as exc:
@@ -391,7 +394,7 @@ class LearnedFeatures(FeatureSource):
             level = frame_statistics(image, self.normalization)
         x = normalize(x, self.normalization, level)
         xp, crop = pad_to_multiple(x, self.multiple)
-        y = self.session.run(["likelihood"], {"image": xp[None, None].astype(np.float32)})[0][0]
+        y = self.sessions.run(xp[None, None].astype(np.float32), whole_frame)[0]
         up = to_frame_grid(y, xp.shape)[(slice(None),) + crop]  # stride 2 -> the model grid
         return clip_unit(up)
 
@@ -403,7 +406,7 @@ class LearnedFeatures(FeatureSource):
             return self.likelihood(frame), frame.grid
         self.match_speckle(im, frame.grid.spacing_mm)
         level = frame_image_statistics(frame) if self.normalization["mode"] == "robust" else None
-        maps = self._model_grid_maps(im, frame.grid.spacing_mm, level)
+        maps = self._model_grid_maps(im, frame.grid.spacing_mm, level, whole_frame=True)
         return (Likelihood(shaft=maps[0], tip=maps[1], source=self.name),
                 model_grid(frame.grid, maps.shape[1:]))
 
@@ -443,7 +446,7 @@ class LearnedFeatures(FeatureSource):
     def _run_box(self, x: np.ndarray) -> np.ndarray | None:
         """The shaft and tip outputs for a model-grid input ``x``; None when their shape is not
         ``x``'s over the stride (a model the region path cannot line up)."""
-        y = self.session.run(["likelihood"], {"image": x[None, None].astype(np.float32)})[0][0]
+        y = self.sessions.run(x[None, None].astype(np.float32))[0]
         want = tuple(-(-n // self.stride) for n in x.shape)
         return y[:2] if tuple(y.shape[1:]) == want else None
 

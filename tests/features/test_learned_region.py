@@ -92,7 +92,7 @@ def test_region_maps_are_the_whole_maps_where_the_context_is_the_receptive_field
     whole frame's weights, lined up with its grid and mapped back as the whole."""
     fr, region = frame
     f = LearnedFeatures(model_path, margin_mm=0.0)
-    f.session = _PoolingNet()
+    f.sessions.exported = _PoolingNet()
     whole = f.likelihood(fr)
     part = f.likelihood(fr, roi=region)
     g = f._grid_maps(fr.image.shape, fr.grid.spacing_mm)
