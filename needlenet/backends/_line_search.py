@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 import cv2
 import numba
 import numpy as np
-from scipy import ndimage
 
 from synth import Grid
 
@@ -181,7 +180,7 @@ def hough_peaks(pts: np.ndarray, w: np.ndarray, thetas_rad: np.ndarray, rho_bin_
     acc = np.zeros((len(thetas), n_bins))
     for a0, rho in blocks:  # the votes inside the window (decided on the bin, as counted)
         _vote(rho, w32, lo, 1.0 / rho_bin_mm, acc[a0:a0 + rho.shape[1]])
-    acc = ndimage.uniform_filter1d(acc, 3, axis=1, mode="constant") * 3.0
+    acc = _box3(acc)
     flat_acc = acc.ravel()
     order = np.flatnonzero(flat_acc > 0)  # most cells are empty (and slow to partition)
     top = min(50 * n_peaks, order.size)  # the strongest cells only: n_peaks separated maxima
@@ -214,6 +213,29 @@ def _vote(rho, w, lo, inv, acc):  # pragma: no cover - compiled
             b = int(np.floor((rho[i, a] - lo32) * inv32))
             if 0 <= b < n_bins:
                 acc[a, b] += wi
+
+
+@numba.njit(cache=True, nogil=True)
+def _box3(acc):  # pragma: no cover - compiled
+    """The sum of each cell and its two neighbours along each row (0 past the ends), as
+    ``uniform_filter1d(acc, 3, axis=1, mode="constant") * 3.0`` gives it to the bit: scipy's
+    running sum along the row (the sample entering less the one leaving, added at each
+    step), divided by 3, times 3."""
+    n, m = acc.shape
+    out = np.empty_like(acc)
+    for a in range(n):
+        tmp = 0.0
+        tmp += 0.0
+        tmp += acc[a, 0]
+        if m > 1:
+            tmp += acc[a, 1]
+        out[a, 0] = tmp / 3.0 * 3.0
+        for k in range(1, m):
+            enter = acc[a, k + 1] if k + 1 < m else 0.0
+            leave = acc[a, k - 2] if k >= 2 else 0.0
+            tmp += enter - leave
+            out[a, k] = tmp / 3.0 * 3.0
+    return out
 
 
 def _angle_diff(a: float, b: float) -> float:

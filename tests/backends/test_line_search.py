@@ -11,6 +11,7 @@ from needlenet.backends._line_search import (
     LineSearchParams,
     WorkingMap,
     _best_run,
+    _box3,
     extend_end,
     find_needle_line,
     hough_peaks,
@@ -252,3 +253,17 @@ def test_votes_counted_in_blocks_of_directions_equal_one_accumulator():
     assert out[0, 1] == pytest.approx(lo + (ib + 0.5) * 0.4)
     assert out[0, 2] == pytest.approx(acc.max(), rel=1e-6)
     assert out[0, 2] >= w[:200].sum() * 0.9
+
+
+def test_the_rho_neighbours_are_summed_as_scipys_uniform_filter():
+    """The accumulator's three-bin sums equal scipy's ``uniform_filter1d(..., 3) * 3`` to the
+    bit (its running sum's rounding), on rows of 1 to 300 bins holding sums of float32
+    weights as the votes do."""
+    rng = np.random.default_rng(11)
+    for _ in range(300):
+        n, m = int(rng.integers(1, 30)), int(rng.integers(1, 300))
+        acc = np.zeros((n, m))
+        for _ in range(int(rng.integers(1, 1500))):
+            acc[rng.integers(n), rng.integers(m)] += np.float64(np.float32(rng.random()))
+        want = ndimage.uniform_filter1d(acc, 3, axis=1, mode="constant") * 3.0
+        np.testing.assert_array_equal(_box3(acc), want)

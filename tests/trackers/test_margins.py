@@ -63,3 +63,28 @@ def test_a_black_notch_at_the_border_is_margin_once_it_runs_along_it_far_enough(
     region = m.imaged_region(Frame(image, synth.Grid(image.shape, (0.1, 0.1), (0.0, 0.0))))
     assert (not region[10, 100 + n // 2]) == margin
     assert region[100:, :].all()
+
+
+def _border_rows_by_cv2(im, level, k):
+    """The border's blank pixels read off OpenCV's box filter of each border strip."""
+    kx, kz = min(k[0], im.shape[1]), min(k[1], im.shape[0])
+    return (m._blank(im[:kz], level, k)[0], m._blank(im[-kz:], level, k)[-1],
+            m._blank(im[:, :kx], level, k)[:, 0], m._blank(im[:, -kx:], level, k)[:, -1])
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
+def test_the_border_test_counts_as_opencvs_box_filter(dtype):
+    """The compiled border count gives the blank pixels OpenCV's box filter gives, on frames
+    from 1 pixel to larger than the box, boxes wider or taller than the frame (reflected more
+    than once), black levels 0 and 12, and boxes whose size is or is not a multiple of 5."""
+    rng = np.random.default_rng(int(np.dtype(dtype).num))
+    for _ in range(400):
+        h, w = rng.integers(1, 90, 2)
+        im = rng.gamma(0.5, 20.0, (h, w)).clip(0, 255)
+        im[rng.random((h, w)) < rng.random()] = 0
+        im = im.astype(dtype)
+        level = float(rng.choice([0.0, 12.0]))
+        k = (int(rng.integers(1, 30)) | 1, int(rng.integers(1, 30)) | 1)
+        for a, b in zip(m._border_blank(im, level, k), _border_rows_by_cv2(im, level, k),
+                        strict=True):
+            np.testing.assert_array_equal(a, b)
