@@ -74,17 +74,18 @@ class ModelSessions:
         if fixed is not None:
             self._fixed.move_to_end(shape)
             return fixed
-        names = self._axes() if len(shape) == 2 else None
-        if not build or names is None:
+        if not build or len(shape) != 2:
             return self.exported
-        import onnxruntime as ort
+        names = self._axes()
+        fixed = self.exported  # where the axes cannot be fixed, or the session not built
+        if names is not None:
+            import onnxruntime as ort
 
-        try:
-            fixed = ort.InferenceSession(
-                self.path, session_options(self.threads, dict(zip(names, shape, strict=True))),
-                providers=["CPUExecutionProvider"])
-        except Exception:  # onnxruntime raises its own types: the exported session runs it
-            fixed = self.exported
+            opts = session_options(self.threads, dict(zip(names, shape, strict=True)))
+            try:
+                fixed = ort.InferenceSession(self.path, opts, providers=["CPUExecutionProvider"])
+            except Exception:  # onnxruntime raises its own exception types
+                pass
         self._fixed[shape] = fixed
         if len(self._fixed) > MAX_FIXED:
             self._fixed.popitem(last=False)
