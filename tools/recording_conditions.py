@@ -1,6 +1,6 @@
 """Write a copy of a set of labelled 2D sequences as another recording would show it: receiver
-noise, a depth-dependent gain, coarser pixels, or a gray biopsy guide drawn over a live
-recording (docs/results.md, "Recording conditions").
+noise, a depth-dependent gain, a brighter display, coarser pixels, or a gray biopsy guide
+drawn over a live recording (docs/results.md, "Recording conditions").
 
     python tools/recording_conditions.py SRC DST OP VALUE
 
@@ -11,6 +11,8 @@ SRC: a directory of sequence files (.npz, needlenet's format), e.g. the in-plane
   the file's name), on the imaged pixels (those above 0; they stay above 0);
 - ``ramp`` LEVELS: a gain that changes linearly with depth, from -LEVELS/2 grey levels at the
   top to +LEVELS/2 at the bottom (negative: darker with depth), on the imaged pixels;
+- ``gain`` FACTOR: a brighter display, the imaged pixels' grey levels times FACTOR, clipped
+  at 255 (a bright needle and the streak past its tip go white together);
 - ``scale`` FACTOR: pixels FACTOR times larger (OpenCV's area resampling), spacing and origin
   moved to match, labels unchanged (they are in mm);
 - ``guide`` GRAY: receiver noise of 2 grey levels (a live recording) and a dotted biopsy guide
@@ -35,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import synth  # noqa: E402
 
-OPS = ("noise", "ramp", "scale", "guide")
+OPS = ("noise", "ramp", "gain", "scale", "guide")
 
 
 def _imaged(x: np.ndarray, original: np.ndarray) -> np.ndarray:
@@ -54,6 +56,11 @@ def depth_ramp(images: np.ndarray, levels: float) -> np.ndarray:
     ims = np.asarray(images, np.float32)
     ramp = np.linspace(-levels / 2, levels / 2, ims.shape[1], dtype=np.float32)[None, :, None]
     return _imaged(ims + ramp, ims)
+
+
+def brighter(images: np.ndarray, factor: float) -> np.ndarray:
+    ims = np.asarray(images, np.float32)
+    return _imaged(ims * np.float32(factor), ims)
 
 
 def drawn_guide(images: np.ndarray, gray: int) -> np.ndarray:
@@ -75,6 +82,8 @@ def converted(seq, op: str, value: float, rng: np.random.Generator):
         return dataclasses.replace(seq, images=noisy(ims, value, rng))
     if op == "ramp":
         return dataclasses.replace(seq, images=depth_ramp(ims, value))
+    if op == "gain":
+        return dataclasses.replace(seq, images=brighter(ims, value))
     if op == "guide":
         return dataclasses.replace(seq, images=drawn_guide(noisy(ims, 2.0, rng), int(value)))
     h, w = ims.shape[1:]
@@ -109,6 +118,8 @@ def main(argv=None) -> int:
         ap.error(f"no sequence files (*.npz) in {src}")
     if a.op == "scale" and not 1.0 <= a.value <= 4.0:
         ap.error(f"scale must lie in 1-4, got {a.value}")
+    if a.op == "gain" and not 0.1 <= a.value <= 4.0:
+        ap.error(f"gain must lie in 0.1-4, got {a.value}")
     if a.op in ("noise",) and not 0.0 < a.value <= 50.0:
         ap.error(f"noise sigma must lie in (0, 50] grey levels, got {a.value}")
     if a.op == "guide" and not 1 <= a.value <= 254:

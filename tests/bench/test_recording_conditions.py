@@ -1,6 +1,6 @@
 """``tools/recording_conditions.py``: copies of a labelled set as other recordings show it
-(receiver noise, a depth-dependent gain, coarser pixels, a drawn guide), each doing what it
-says and nothing else."""
+(receiver noise, a depth-dependent gain, a brighter display, coarser pixels, a drawn guide),
+each doing what it says and nothing else."""
 
 from pathlib import Path
 
@@ -46,6 +46,15 @@ def test_ramp_changes_the_grey_level_with_depth(tool, seq):
                     for r in rows])
     keep = np.isfinite(got)
     np.testing.assert_allclose(got[keep], want[keep], atol=0.6)
+
+
+def test_gain_scales_the_grey_levels_and_clips_at_white(tool, seq):
+    ims = np.asarray(seq.images).astype(float)
+    out = tool.converted(seq, "gain", 1.25, None).images.astype(float)
+    on = ims > 0
+    assert np.array_equal(out > 0, on)  # the sector's outside stays black
+    np.testing.assert_array_equal(out[on], np.minimum(np.rint(1.25 * ims[on]), 255))
+    assert np.mean(out[on] == 255) > np.mean(ims[on] == 255)  # more of the needle is white
 
 
 def test_scale_keeps_every_place_in_millimetres(tool, seq):
