@@ -38,12 +38,17 @@ def _boxes(frame: Frame) -> list[tuple[float, tuple[int, int]]]:
     return out
 
 
+def _counted(n: int) -> bool:
+    """Whether a box of ``n`` pixels is tested by its count in integers (a third of the
+    time): with n no multiple of 5 no box is exactly a fifth, so "count < n / 5" is the
+    mean's "<= 0.2" whatever its rounding (and a 16-bit count holds n)."""
+    return bool(n % 5) and n < 65536
+
+
 def _blank(im: np.ndarray, level: float, k: tuple[int, int]) -> np.ndarray:
     """Pixels whose box ``k`` is at most a fifth above ``level``."""
     n = k[0] * k[1]
-    if n % 5 and n < 65536:
-        # counted in integers (a third of the time): with n no multiple of 5 no box is
-        # exactly a fifth, so "count < n / 5" is the mean's "<= 0.2" whatever its rounding
+    if _counted(n):
         count = cv2.boxFilter((im > level).view(np.uint8), cv2.CV_16U, k, normalize=False)
         return count < (n + 4) // 5
     return cv2.blur((im > level).astype(np.float32), k) <= 0.2
@@ -133,7 +138,7 @@ def _border_blank(im: np.ndarray, level: float, k: tuple[int, int]) -> tuple[np.
     along the border that the boxes cover (the same values as :func:`_blank` of the frame)."""
     kx, kz = min(k[0], im.shape[1]), min(k[1], im.shape[0])
     n = k[0] * k[1]
-    if n % 5 and n < 65536:  # _blank's count in integers, border rows only
+    if _counted(n):  # _blank's count, on the border rows only
         least = (n + 4) // 5
         return tuple(_edge_count(strip, level, a, b) < least for strip, a, b in (
             (im[:kz], k[0], k[1]), (im[-kz:][::-1], k[0], k[1]),
