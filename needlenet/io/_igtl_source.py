@@ -130,6 +130,10 @@ def frame_from_image_message(msg, index: int, device: str = DEFAULT_IMAGE_DEVICE
         raise StreamError(f"{where}: {im.shape[1]}x{im.shape[0]} pixels is no image")
     if im.dtype != np.uint8:
         im = to_gray_uint8(im[None], 1)[0][0]
+    # a frame of its own in one layout, as a recording's frames are: the trackers' compiled
+    # code then runs on it as it is (a view into the message's buffer is read-only and
+    # strided, each a version to compile while the stream runs)
+    im = np.require(im, np.uint8, ["C_CONTIGUOUS", "WRITEABLE", "OWNDATA"])
     m = np.asarray(msg.ijk_to_world_matrix, float)
     if m.shape != (4, 4) or not np.all(np.isfinite(m)):
         raise StreamError(f"{where}: its IJK-to-world matrix is not 4 x 4 finite numbers")

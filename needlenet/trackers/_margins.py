@@ -140,9 +140,12 @@ def _border_blank(im: np.ndarray, level: float, k: tuple[int, int]) -> tuple[np.
     n = k[0] * k[1]
     if _counted(n):  # _blank's count, on the border rows only
         least = (n + 4) // 5
-        return tuple(_edge_count(strip, level, a, b) < least for strip, a, b in (
-            (im[:kz], k[0], k[1]), (im[-kz:][::-1], k[0], k[1]),
-            (im[:, :kx].T, k[1], k[0]), (im[:, -kx:][:, ::-1].T, k[1], k[0])))
+        # each strip turned so that its first row is the border, copied to one layout (one
+        # compiled version per pixel type)
+        return tuple(_edge_count(np.ascontiguousarray(strip), float(level), a, b) < least
+                     for strip, a, b in ((im[:kz], k[0], k[1]), (im[-kz:][::-1], k[0], k[1]),
+                                         (im[:, :kx].T, k[1], k[0]),
+                                         (im[:, -kx:][:, ::-1].T, k[1], k[0])))
     return (_blank(im[:kz], level, k)[0], _blank(im[-kz:], level, k)[-1],
             _blank(im[:, :kx], level, k)[:, 0], _blank(im[:, -kx:], level, k)[:, -1])
 

@@ -12,6 +12,7 @@ import synth
 from needlenet.cli import main
 from needlenet.io import IGTLStreamer, StreamError
 from needlenet.io._igtl_source import frame_from_image_message, parse_igtl_url
+from needlenet.trackers import make_tracker
 
 pyigtl = pytest.importorskip("pyigtl")
 
@@ -85,6 +86,9 @@ def test_a_stream_is_tracked_live_from_the_command_line(tmp_path, capsys):
     """A PLUS-like server (needlenet's streamer, on loopback) sends a synth insertion frame
     by frame; `track igtl://` tracks what arrives and stops when the stream pauses."""
     seq = synth.generate("inplane", seed=21, frames=8)
+    # the frames come at a rate a warm tracker keeps up with: the default tracker's compiled
+    # code is loaded (or, on a fresh clone, compiled: seconds) before the stream starts
+    make_tracker("inplane").run(seq)
     server = IGTLStreamer(0)
     sent = threading.Event()
 
